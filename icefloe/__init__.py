@@ -1,0 +1,1 @@
+"""icefloe: the software stack of a small education robot."""

@@ -1,0 +1,325 @@
+"""Robot configuration: one TOML file per robot in ``deploy/robots/``.
+
+A file may start with ``extends = "other.toml"`` (relative to its own folder):
+its tables are merged over the other file's, so a lab keeps one base file and
+twenty short robot files. A bad file raises `ConfigError` naming the file and
+the key, and nothing starts.
+
+Strings may contain ``{run_dir}`` (the robot's runtime folder, for sockets and
+pseudo-terminals) and ``{name}`` (the robot's name).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+import msgspec
+
+from .errors import ConfigError
+
+ROBOTS_DIR = Path(__file__).resolve().parent.parent / "deploy" / "robots"
+DEFAULT_CONFIG = ROBOTS_DIR / "sim.toml"
+ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
+
+
+class Section(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Base of every config table: unknown keys are errors (a typo must not pass silently)."""
+
+
+class Board(Section):
+    """The I/O board and how to reach it."""
+
+    kind: Literal["penguinpi", "icoboard"] = "penguinpi"
+    backend: Literal["hardware", "sim"] = "sim"
+    """"hardware": the real board; "sim": the simulator's model of it (same wire protocol)."""
+    serial_port: str = "/dev/serial0"
+    """PenguinPi: the serial device (the simulator's pseudo-terminal in sim)."""
+    baud: int = 115200
+    spi_device: str = "/dev/spidev0.0"
+    """icoBoard: the SPI device on the Pi."""
+    spi_speed_hz: int = 1_000_000
+    sim_socket: str = "{run_dir}/icoboard.sock"
+    """icoBoard in sim: the simulator's datagram socket (one datagram = one SPI exchange)."""
+    protocol: Literal[1, 2] = 2
+    """icoBoard SPI protocol version."""
+    sensors: int = 2
+    """icoBoard: number of sensors (encoders), M."""
+    actuators: int = 2
+    """icoBoard: number of actuators (PWM), N."""
+
+
+class Geometry(Section):
+    wheel_diameter: float = 0.065
+    """m."""
+    track: float = 0.156
+    """Distance between the wheels' contact points, m."""
+    ticks_per_rev: int = 384
+    """Encoder counts per wheel turn."""
+
+
+class Hwbridge(Section):
+    rate_hz: float = 1000.0
+    """Real-time cycle rate. The PenguinPi link cannot hold 1 kHz at 115200 baud; see docs."""
+    serial_rate_hz: float = 200.0
+    """PenguinPi: exchange rate on the serial link (MULTI_SET_VEL_GET_ENC)."""
+    wheels_rate_hz: float = 100.0
+    """Rate of ``hw/wheels`` on the bus (0 = every cycle)."""
+    deadman_s: float = 0.5
+    """Wheels stop when no command arrived for this long."""
+    max_wheel_speed: float = 0.5
+    """Commands are clamped to this rim speed, m/s."""
+    max_accel: float = 2.0
+    """Commanded rim speed changes at most this fast, m/s^2."""
+    priority: int = 80
+    """SCHED_FIFO priority of the cycle (if the OS allows it)."""
+    cpu: int = -1
+    """CPU to pin the cycle to (-1 = the last CPU)."""
+    kp: float = 4000.0
+    """icoBoard wheel PI controller: duty counts per (m/s) of speed error."""
+    ki: float = 60000.0
+    """Duty counts per (m/s * s) of integrated error."""
+    speed_window_s: float = 0.05
+    """Measured wheel speed = encoder counts over this window, s (one count is ~0.5 mm)."""
+
+
+class Camera(Section):
+    source: str = "sim"
+    """"sim", "picamera2", "v4l2:<index or path>", or a folder/video file to replay."""
+    width: int = 640
+    height: int = 480
+    fps: float = 15.0
+    image_rate_hz: float = 2.0
+    """Rate of ``camera/image`` on the bus (Wi-Fi is shared by a class)."""
+    image_width: int = 320
+    image_height: int = 240
+    jpeg_quality: int = 70
+    dictionary: str = "DICT_4X4_50"
+    calibration: str = ""
+    """Calibration file (OpenCV YAML/JSON with camera_matrix, dist_coeffs); "" = nominal."""
+    focal_px: float = 500.0
+    """Nominal focal length in pixels when there is no calibration file."""
+    mount_x: float = 0.05
+    """Camera position ahead of the robot's centre, m."""
+    mount_y: float = 0.0
+    mount_z: float = 0.10
+    """Camera height above the floor, m."""
+    mount_yaw: float = 0.0
+    """Camera heading relative to the robot's, rad."""
+
+
+class Power(Section):
+    source: Literal["board", "sim", "i2c"] = "board"
+    low_v: float = 7.0
+    critical_v: float = 6.5
+    critical_readings: int = 5
+    """Consecutive critical readings before shutting down."""
+    pole: float = 0.9
+    """First-order filter pole (0 = no filtering)."""
+    poweroff_command: list[str] = msgspec.field(default_factory=lambda: ["true"])
+    """What powers the machine off, e.g. ["sudo", "systemctl", "poweroff"]."""
+    gpio_chip: str = "/dev/gpiochip0"
+    button_line: int = 22
+    request_line: int = 10
+    ack_line: int = 11
+    gpio: Literal["gpiod", "sim", "none"] = "sim"
+    """GPIO backend: "gpiod" (the Pi's lines), "sim" (the simulator's lines on `sim/gpio`), "none"."""
+    debounce_s: float = 0.02
+    """Edges closer together than this are one bounce burst, s."""
+    button_hold_s: float = 0.5
+    """The shutdown button must be held this long, s (like the old GPIOSoftShutdown daemon)."""
+    request_hold_s: float = 15.0
+    """The board's request line must stay low this long, s (reflashing over SPI toggles it)."""
+    halt_timeout_s: float = 3.0
+    """How long to wait for hwbridge to confirm the wheels stopped (`cmd/halt`), s."""
+    ack_delay_s: float = 0.5
+    """Pause after dropping the acknowledge line, before powering off, s (the board shows its message)."""
+
+
+class Display(Section):
+    kind: Literal["penguinpi", "ssd1306", "none"] = "penguinpi"
+    i2c_port: int = 1
+    i2c_address: int = 0x3C
+    rate_hz: float = 5.0
+
+
+class Odometry(Section):
+    """Dead reckoning from the wheel encoders (services/odometry, docs/odometry.md)."""
+
+    rate_hz: float = 50.0
+    """Rate of ``odom/pose`` on the bus, Hz."""
+    max_wheel_speed: float = 1.0
+    """Plausibility limit, m/s: a count step faster than this (plus `jump_margin`) is a glitch, not motion."""
+    jump_margin: float = 0.005
+    """Allowance per sample on top of ``max_wheel_speed * dt``, m (timestamp jitter, one count)."""
+    gap_s: float = 0.25
+    """A silence on ``hw/wheels`` longer than this is logged (the motion across it is still integrated), s."""
+    speed_window_s: float = 0.1
+    """v and w are averaged over this much recent motion, s."""
+
+
+class Localizer(Section):
+    world: str = "lab.toml"
+    """Landmark map: a world file in ``deploy/worlds/`` (or a path)."""
+    rate_hz: float = 20.0
+    """Steady rate of ``loc/pose``, Hz (it is also published after every landmark update)."""
+    init: Literal["config", "landmarks"] = "config"
+    """Initial pose: "config" = initial_* below; "landmarks" = solved from the first frame with >= 2 known markers."""
+    initial_x: float = 0.0
+    """m."""
+    initial_y: float = 0.0
+    """m."""
+    initial_theta: float = 0.0
+    """rad."""
+    initial_sigma_xy: float = 0.1
+    """Standard deviation of the initial position, m."""
+    initial_sigma_theta: float = 0.1
+    """Standard deviation of the initial heading, rad."""
+    sigma_range: float = 0.03
+    """Landmark range noise, m (standard deviation, at any range)."""
+    sigma_range_rel: float = 0.02
+    """Landmark range noise that grows with range, fraction of the range."""
+    sigma_bearing: float = 0.02
+    """Landmark bearing noise, rad."""
+    odom_sigma_d: float = 0.02
+    """Odometry distance noise, m per sqrt(m) travelled (random walk)."""
+    odom_sigma_theta: float = 0.03
+    """Odometry heading noise from turning, rad per sqrt(rad) turned."""
+    odom_sigma_theta_d: float = 0.03
+    """Odometry heading noise from driving, rad per sqrt(m) travelled (slip, wheel radius errors)."""
+    gate_chi2: float = 11.83
+    """Mahalanobis gate on (range, bearing): chi-square, 2 degrees of freedom (11.83 = 99.73 %, "3 sigma")."""
+
+
+class Sim(Section):
+    world: str = "lab.toml"
+    seed: int = 0
+    """Random seed for slip and noise (0 = pick one and print it)."""
+    slip: float = 0.0
+    """Relative wheel slip noise (0 = none)."""
+    encoder_noise: float = 0.0
+    truth_rate_hz: float = 50.0
+    camera: bool = True
+
+
+class Webapi(Section):
+    """The PenguinPi-compatible HTTP API (``services/webapi``, docs/webapi.md)."""
+
+    host: str = "0.0.0.0"
+    port: int = 8080
+    """TCP port of the HTTP server (the old PenguinPi server used 8080)."""
+    max_demand: int = 100
+    """Largest wheel speed accepted, in PenguinPi firmware demand units (about 5.3 mm/s each)."""
+    max_time: float = 30.0
+    """Longest timed motion accepted by /robot/set/velocity, s."""
+
+
+class Zenoh(Section):
+    listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
+    """Where the robot's router listens; laptops connect here."""
+    connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    """Where the robot's own services connect (its router)."""
+    user: str = ""
+    password: str = ""
+    config: str = ""
+    """Extra Zenoh JSON5 config file for the router (access control, TLS)."""
+
+
+class RobotConfig(Section):
+    name: str = "sim"
+    run_dir: str = ""
+    """Runtime folder for sockets and pseudo-terminals ("" = <tmp>/icefloe-<name>)."""
+    services: list[str] = msgspec.field(default_factory=lambda: list(ALL_SERVICES))
+    """Services `icefloe up` starts (besides the router), in order; missing ones are skipped."""
+    board: Board = Board()
+    geometry: Geometry = Geometry()
+    hwbridge: Hwbridge = Hwbridge()
+    camera: Camera = Camera()
+    power: Power = Power()
+    display: Display = Display()
+    odometry: Odometry = Odometry()
+    localizer: Localizer = Localizer()
+    sim: Sim = Sim()
+    webapi: Webapi = Webapi()
+    zenoh: Zenoh = Zenoh()
+    source: str = ""
+    """The file this config was read from (filled in by `load`)."""
+
+    @property
+    def runtime_dir(self) -> Path:
+        return Path(self.run_dir or Path(tempfile.gettempdir()) / f"icefloe-{self.name}")
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _read(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    if path in seen:
+        raise ConfigError(f"{path}: `extends` loops back to itself")
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    parent = data.pop("extends", None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise ConfigError(f"{path}: extends: expected a file name")
+    base_path = (path.parent / parent).resolve()
+    return _merge(_read(base_path, (*seen, path)), data)
+
+
+def _expand(value: Any, names: dict[str, str]) -> Any:
+    if isinstance(value, str):
+        return value.replace("{run_dir}", names["run_dir"]).replace("{name}", names["name"])
+    if isinstance(value, list):
+        return [_expand(v, names) for v in value]
+    if isinstance(value, dict):
+        return {k: _expand(v, names) for k, v in value.items()}
+    return value
+
+
+def _field_path(message: str) -> tuple[str, str]:
+    """Turn msgspec's "... - at `$.hwbridge.rate_hz`" into ("hwbridge.rate_hz", "...")."""
+    text, sep, where = message.rpartition(" - at `$")
+    if not sep:
+        return "", message
+    return where.rstrip("`").lstrip("."), text
+
+
+def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
+    """Typed config from a TOML-shaped dict; `ConfigError` names the source and the key."""
+    try:
+        config = msgspec.convert(data, RobotConfig)
+    except msgspec.ValidationError as exc:
+        where, text = _field_path(str(exc))
+        if "unknown field" in text and where:
+            where = f"[{where}]"
+        raise ConfigError(f"{source}: {where + ': ' if where else ''}{text}") from None
+    if not config.name or "/" in config.name or "*" in config.name:
+        raise ConfigError(f"{source}: name: {config.name!r} is not a usable robot name")
+    run_dir = str(config.runtime_dir)
+    expanded = _expand(msgspec.to_builtins(config), {"run_dir": run_dir, "name": config.name})
+    expanded["source"] = source
+    return msgspec.convert(expanded, RobotConfig)
+
+
+def load(path: str | os.PathLike[str] | None = None) -> RobotConfig:
+    """Load a robot config. ``None`` = the embedded simulated robot; a bare name = deploy/robots/NAME.toml."""
+    if path is None:
+        path = DEFAULT_CONFIG
+    p = Path(path)
+    if not p.suffix and not p.exists():
+        p = ROBOTS_DIR / f"{p}.toml"
+    return parse(_read(p.resolve()), str(p))

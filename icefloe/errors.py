@@ -1,0 +1,45 @@
+"""Errors with names.
+
+Every error icefloe raises on purpose is one of these. Messages name the thing
+that was wrong (the key, the field, the port, the config key) so that a student
+reading a log line knows where to look.
+"""
+
+
+class IcefloeError(Exception):
+    """Base class of every icefloe error."""
+
+
+class ConfigError(IcefloeError):
+    """A robot config file is missing, unreadable or has a bad value.
+
+    The message names the file and the key, e.g.
+    ``deploy/robots/x.toml: hwbridge.rate_hz: Expected `int`, got `str```.
+    """
+
+
+class BadPayload(IcefloeError):
+    """A bus payload could not be decoded into the message its key carries.
+
+    The message names the key expression and the field, e.g.
+    ``icefloe/sim/cmd/twist: Expected `float`, got `str` - at `$.v```.
+    """
+
+
+class UnknownKey(IcefloeError):
+    """A key expression is not in the key table (`icefloe.schemas.keys`)."""
+
+
+class BoardError(IcefloeError):
+    """The I/O board (PenguinPi serial or icoBoard SPI) misbehaved or is absent.
+
+    The message names the port or device, e.g. ``/dev/serial0: no reply``.
+    """
+
+
+class BoardMismatch(BoardError):
+    """The board's START descriptor does not match the robot config; we refuse to run."""
+
+
+class NotReachable(IcefloeError):
+    """A robot (its Zenoh router or a queryable) did not answer in time."""

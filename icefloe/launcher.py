@@ -1,0 +1,147 @@
+"""`icefloe up`: run every service of a robot as its own process.
+
+The router starts first (every service is a client of it), then the services
+listed in the robot config, in order. Each child's output is prefixed with its
+name. A child that dies is restarted with back-off (1 s, 2 s, 4 s ... 30 s; the
+back-off resets once it has run for a minute). Ctrl-C (or SIGTERM) stops the
+services in reverse order with SIGINT, waits, and kills what is left, so no
+process stays behind.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import importlib.util
+import os
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .config import RobotConfig
+
+STOP_TIMEOUT = 8.0
+MAX_BACKOFF = 30.0
+HEALTHY_AFTER = 60.0
+
+
+def available(service: str) -> bool:
+    """Is there a ``services/<service>`` package to run?"""
+    try:
+        return importlib.util.find_spec(f"icefloe.services.{service}.__main__") is not None
+    except ModuleNotFoundError:
+        return False
+
+
+@dataclass
+class Child:
+    name: str
+    argv: list[str]
+    process: asyncio.subprocess.Process | None = None
+    started: float = 0.0
+    restarts: int = 0
+    backoff: float = 1.0
+    pumps: list[asyncio.Task[None]] = field(default_factory=list)
+
+
+class Launcher:
+    def __init__(self, config: RobotConfig, config_path: Path, services: list[str],
+                 *, out: object = None) -> None:
+        self.config = config
+        self.out = out or sys.stdout
+        width = max([len(s) for s in services] + [6])
+        self._fmt = f"[{{:<{width}}}] "
+        base = [sys.executable, "-m"]
+        cfg = ["--config", str(config_path)]
+        self.children = [Child("router", [*base, "icefloe.router", *cfg])]
+        self.children += [Child(s, [*base, f"icefloe.services.{s}", *cfg]) for s in services]
+        self._stopping = False
+
+    def say(self, name: str, line: str) -> None:
+        print(self._fmt.format(name) + line, file=self.out, flush=True)
+
+    async def _pump(self, child: Child, stream: asyncio.StreamReader) -> None:
+        while line := await stream.readline():
+            self.say(child.name, line.decode(errors="replace").rstrip())
+
+    async def _start(self, child: Child) -> None:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        child.process = await asyncio.create_subprocess_exec(
+            *child.argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+            env=env, start_new_session=True,  # our own Ctrl-C handling decides the order
+        )
+        child.started = time.monotonic()
+        assert child.process.stdout is not None
+        child.pumps = [asyncio.create_task(self._pump(child, child.process.stdout))]
+
+    async def _supervise(self, child: Child) -> None:
+        while not self._stopping:
+            await self._start(child)
+            assert child.process is not None
+            code = await child.process.wait()
+            await asyncio.gather(*child.pumps, return_exceptions=True)
+            if self._stopping:
+                return
+            if time.monotonic() - child.started > HEALTHY_AFTER:
+                child.backoff = 1.0
+            self.say(child.name, f"exited with code {code}; restarting in {child.backoff:.0f} s")
+            child.restarts += 1
+            await asyncio.sleep(child.backoff)
+            child.backoff = min(child.backoff * 2, MAX_BACKOFF)
+
+    async def _wait_router(self) -> None:
+        """Give the router a moment to listen so the services' first connect succeeds."""
+        host_port = self.config.zenoh.connect[0].split("/", 1)[-1] if self.config.zenoh.connect else ""
+        host, _, port = host_port.rpartition(":")
+        for _ in range(100):
+            with contextlib.suppress(OSError):
+                _, writer = await asyncio.open_connection(host or "127.0.0.1", int(port))
+                writer.close()
+                return
+            await asyncio.sleep(0.05)
+
+    async def run(self) -> None:
+        loop = asyncio.get_running_loop()
+        stop = asyncio.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        router, *services = self.children
+        tasks = [asyncio.create_task(self._supervise(router))]
+        await self._wait_router()
+        tasks += [asyncio.create_task(self._supervise(c)) for c in services]
+        self.say("up", f"robot {self.config.name!r}: {', '.join(c.name for c in self.children)} "
+                 f"(Ctrl-C stops them all)")
+        await stop.wait()
+        await self.stop()
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+    async def stop(self) -> None:
+        """SIGINT to the services in reverse order (router last), then SIGKILL what remains."""
+        self._stopping = True
+        self.say("up", "stopping")
+        for child in reversed(self.children):
+            if child.process and child.process.returncode is None:
+                with contextlib.suppress(ProcessLookupError):
+                    child.process.send_signal(signal.SIGINT)
+                try:
+                    await asyncio.wait_for(child.process.wait(), STOP_TIMEOUT)
+                except TimeoutError:
+                    self.say(child.name, f"did not stop within {STOP_TIMEOUT} s; killing it")
+                    with contextlib.suppress(ProcessLookupError):
+                        os.killpg(child.process.pid, signal.SIGKILL)
+                    await child.process.wait()
+        self.say("up", "all stopped")
+
+
+def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> None:
+    """Run the router and the ``wanted`` services that exist, until Ctrl-C."""
+    services = [s for s in wanted if available(s)]
+    missing = [s for s in wanted if s not in services]
+    launcher = Launcher(config, config_path, services)
+    if missing:
+        launcher.say("up", f"not available yet, skipped: {', '.join(missing)}")
+    asyncio.run(launcher.run())

@@ -1,0 +1,428 @@
+"""The service runtime: what every icefloe process is built on.
+
+A service looks like this (see ``services/odometry/`` for a real one)::
+
+    async def main(config: RobotConfig) -> None:
+        async with Node("echo", config) as node:
+            pose = node.publisher(keys.ODOM_POSE)
+            async for wheels in node.subscribe(keys.WHEELS):
+                pose.put(...)
+
+    if __name__ == "__main__":
+        run(main)
+
+What it gives you:
+
+* `Node`: one Zenoh session per process, opened from the robot config (client of
+  the robot's router, no multicast), a liveliness token ``alive/<service>``, a
+  logger that writes to stderr and to the bus key ``log``. Closing the node
+  closes the session, so the process really ends.
+* Typed subscriptions as async iterators. zenoh-python calls us back on its own
+  threads; the callback only stores the raw sample and wakes the event loop
+  (``call_soon_threadsafe``). Decoding happens in the loop. Each subscription
+  has a queue policy: *latest* (keep only the newest sample: sensor streams) or
+  *fifo* (keep up to ``maxsize`` in order, dropping the oldest: commands). Bad
+  payloads are dropped with a log line naming the key and the field.
+* Typed publishers, queryables with async handlers, and `Node.query`.
+* `run`: the ``__main__`` of every service: ``--config``, ``--connect``, logging,
+  and a clean exit on SIGINT/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import logging
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, Generic, TypeVar
+
+import msgspec
+import zenoh
+
+from . import config as config_mod
+from .config import RobotConfig
+from .errors import BadPayload, ConfigError, NotReachable
+from .schemas import codec, keys
+from .schemas.keys import Topic
+from .schemas.messages import Log, Message
+
+T = TypeVar("T", bound=Message)
+MSGPACK = zenoh.Encoding(codec.MSGPACK)
+JSON = zenoh.Encoding(codec.JSON)
+
+
+def zenoh_config(
+    config: RobotConfig,
+    *,
+    mode: str = "client",
+    connect: Sequence[str] | None = None,
+    listen: Sequence[str] | None = None,
+) -> zenoh.Config:
+    """Zenoh config of a session: no multicast scouting, credentials from the robot config."""
+    zc = zenoh.Config()
+    if config.zenoh.config and mode == "router":
+        zc = zenoh.Config.from_file(config.zenoh.config)
+    zc.insert_json5("mode", json.dumps(mode))
+    zc.insert_json5("scouting/multicast/enabled", "false")
+    zc.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
+    zc.insert_json5("listen/endpoints", json.dumps(list(listen or [])))
+    if config.zenoh.user:
+        zc.insert_json5("transport/auth/usrpwd/user", json.dumps(config.zenoh.user))
+        zc.insert_json5("transport/auth/usrpwd/password", json.dumps(config.zenoh.password))
+    return zc
+
+
+@dataclass(frozen=True)
+class RawSample:
+    """A sample as it came off the bus (for tools that handle any key)."""
+
+    key: str
+    payload: bytes
+    encoding: str
+    received: float
+    """time.monotonic() when the callback saw it."""
+
+
+class _LimitedLog:
+    """At most `burst` warnings per second; the rest are counted and summarised."""
+
+    def __init__(self, log: logging.Logger, burst: int = 10) -> None:
+        self._log, self._burst = log, burst
+        self._window, self._count, self._suppressed = 0.0, 0, 0
+
+    def warning(self, text: str) -> None:
+        now = time.monotonic()
+        if now - self._window >= 1.0:
+            if self._suppressed:
+                self._log.warning("... and %d more like it in the last second", self._suppressed)
+            self._window, self._count, self._suppressed = now, 0, 0
+        self._count += 1
+        if self._count <= self._burst:
+            self._log.warning(text)
+        else:
+            self._suppressed += 1
+
+
+class Subscription(Generic[T]):
+    """An async iterator over the messages of one key expression."""
+
+    def __init__(
+        self,
+        node: Node,
+        key_expr: str,
+        decode: Callable[[RawSample], T],
+        *,
+        latest: bool,
+        maxsize: int,
+    ) -> None:
+        self.key_expr = key_expr
+        self.latest = latest
+        self.skipped = 0
+        """Samples overwritten (latest) or dropped because the queue was full (fifo)."""
+        self.rejected = 0
+        """Samples dropped because they did not decode."""
+        self._decode = decode
+        self._loop = asyncio.get_running_loop()
+        self._items: deque[RawSample] = deque(maxlen=1 if latest else maxsize)
+        self._lock = threading.Lock()
+        self._wake = asyncio.Event()
+        self._wake_pending = False
+        self._closed = False
+        self._warn = _LimitedLog(node.log)
+        self._sub = node.session.declare_subscriber(key_expr, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Runs on a Zenoh thread: copy the bytes, queue them, wake the loop once. Never block.
+        raw = RawSample(
+            str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.monotonic()
+        )
+        with self._lock:
+            if len(self._items) == self._items.maxlen:
+                self.skipped += 1
+            self._items.append(raw)
+            if self._wake_pending:
+                return
+            self._wake_pending = True
+        with contextlib.suppress(RuntimeError):  # the loop is closing: nothing to wake
+            self._loop.call_soon_threadsafe(self._wake.set)
+
+    def __aiter__(self) -> Subscription[T]:
+        return self
+
+    async def __anext__(self) -> T:
+        while True:
+            with self._lock:
+                raw = self._items.popleft() if self._items else None
+                if raw is None:
+                    self._wake_pending = False
+                    self._wake.clear()
+            if raw is None:
+                if self._closed:
+                    raise StopAsyncIteration
+                await self._wake.wait()
+                continue
+            try:
+                return self._decode(raw)
+            except BadPayload as exc:
+                self.rejected += 1
+                self._warn.warning(f"dropped: {exc}")
+
+    def pending(self) -> int:
+        """Samples queued and not yet read."""
+        with self._lock:
+            return len(self._items)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._sub.undeclare()
+            self._wake.set()
+
+
+class Publisher(Generic[T]):
+    """Publishes one message type on one key, as MessagePack."""
+
+    def __init__(self, node: Node, topic: Topic, *, express: bool = False) -> None:
+        self.key_expr = node.key(topic)
+        self._type = topic.type
+        self._pub = node.session.declare_publisher(
+            self.key_expr,
+            encoding=MSGPACK,
+            congestion_control=zenoh.CongestionControl.DROP,
+            express=express,
+        )
+
+    def put(self, message: T) -> None:
+        if type(message) is not self._type:
+            raise TypeError(f"{self.key_expr} carries {self._type.__name__}, not {type(message).__name__}")
+        self._pub.put(codec.encode(message))
+
+
+class Node:
+    """One service's connection to the bus. Use as ``async with Node(name, config) as node``."""
+
+    def __init__(self, service: str, config: RobotConfig, *, mode: str = "client",
+                 announce: bool = True, retry: bool = True) -> None:
+        """``announce``: hold the liveliness token; ``retry``: wait for the router instead of
+        raising `NotReachable` (services wait; command-line tools fail fast)."""
+        self.service = service
+        self.announce = announce
+        self.retry = retry
+        self.config = config
+        self.robot = config.name
+        self.mode = mode
+        self.log = logging.getLogger(f"icefloe.{service}")
+        self.session: zenoh.Session
+        self._closables: list[Any] = []
+        self._log_handler: _BusLogHandler | None = None
+        self._tasks: set[asyncio.Task[Any]] = set()
+
+    def key(self, topic: Topic | str) -> str:
+        return keys.key(self.robot, topic)
+
+    async def __aenter__(self) -> Node:
+        self.session = await open_session(self.config, mode=self.mode, log=self.log, retry=self.retry)
+        if self.announce:
+            token = self.session.liveliness().declare_token(keys.alive_key(self.robot, self.service))
+            self._closables.append(token)
+        self._log_handler = _BusLogHandler(self)
+        self.log.addHandler(self._log_handler)
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        if self._log_handler is not None:
+            self.log.removeHandler(self._log_handler)
+            self._log_handler = None
+        for task in self._tasks:
+            task.cancel()
+        for item in reversed(self._closables):
+            with contextlib.suppress(Exception):
+                if isinstance(item, Subscription):
+                    item.close()
+                else:
+                    item.undeclare()
+        self._closables.clear()
+        if hasattr(self, "session") and not self.session.is_closed():
+            self.session.close()
+
+    # ------------------------------------------------------------------ subscribing
+
+    def subscribe(self, topic: Topic, *, latest: bool | None = None, maxsize: int = 64,
+                  robot: str | None = None) -> Subscription[Any]:
+        """Typed messages of ``topic``. Default policy: fifo for commands, latest for state."""
+        key_expr = keys.key(robot or self.robot, topic)
+        type_ = topic.type
+
+        def decode(raw: RawSample) -> Any:
+            return codec.decode(raw.payload, raw.encoding, type_, raw.key)
+
+        if latest is None:
+            latest = topic.kind == "out"
+        sub: Subscription[Any] = Subscription(self, key_expr, decode, latest=latest, maxsize=maxsize)
+        self._closables.append(sub)
+        return sub
+
+    def subscribe_raw(self, key_expr: str, *, maxsize: int = 1024) -> Subscription[Any]:
+        """Undecoded samples of any key expression (wildcards allowed), in order."""
+        sub: Subscription[Any] = Subscription(self, key_expr, lambda raw: raw, latest=False, maxsize=maxsize)
+        self._closables.append(sub)
+        return sub
+
+    # ------------------------------------------------------------------ publishing
+
+    def publisher(self, topic: Topic, *, express: bool = False) -> Publisher[Any]:
+        pub: Publisher[Any] = Publisher(self, topic, express=express)
+        self._closables.append(pub._pub)
+        return pub
+
+    # ------------------------------------------------------------------ queries
+
+    def queryable(self, topic: Topic, handler: Callable[[Any], Awaitable[Message]]) -> None:
+        """Answer queries on ``topic`` with ``await handler(request)``; bad requests get an error reply."""
+        loop = asyncio.get_running_loop()
+        key_expr = self.key(topic)
+
+        async def answer(query: zenoh.Query) -> None:
+            try:
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                encoding = str(query.encoding) if query.encoding is not None else ""
+                request = codec.decode(payload, encoding, topic.type, key_expr)
+                reply = await handler(request)
+                query.reply(key_expr, codec.encode(reply), encoding=MSGPACK)
+            except BadPayload as exc:
+                self.log.warning("rejected query: %s", exc)
+                query.reply_err(str(exc))
+            except Exception as exc:
+                self.log.exception("query %s failed", key_expr)
+                query.reply_err(f"{key_expr}: {type(exc).__name__}: {exc}")
+            finally:
+                query.drop()
+
+        def on_query(query: zenoh.Query) -> None:  # Zenoh thread
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(self._spawn, answer(query))
+
+        self._closables.append(self.session.declare_queryable(key_expr, on_query))
+
+    def _spawn(self, coro: Awaitable[Any]) -> None:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def query(self, topic: Topic, request: Message | None = None, *, timeout: float = 2.0,
+                    robot: str | None = None) -> Any:
+        """Ask a queryable and return its typed answer; `NotReachable` if nobody answers."""
+        key_expr = keys.key(robot or self.robot, topic)
+        payload = codec.encode(request) if request is not None else None
+
+        def ask() -> Any:
+            replies = self.session.get(key_expr, payload=payload, encoding=MSGPACK if payload else None,
+                                       timeout=timeout)
+            for reply in replies:
+                if reply.ok is not None:
+                    s = reply.ok
+                    return codec.decode(s.payload.to_bytes(), str(s.encoding), topic.reply, key_expr)
+                raise BadPayload(f"{key_expr}: {reply.err.payload.to_string()}")
+            raise NotReachable(f"{key_expr}: no answer within {timeout} s")
+
+        return await asyncio.to_thread(ask)
+
+    async def alive(self, robot: str | None = None) -> list[str]:
+        """Services holding a liveliness token on a robot (``*`` for every robot)."""
+        pattern = keys.alive_key(robot or self.robot, "*")
+        replies = await asyncio.to_thread(lambda: list(self.session.liveliness().get(pattern, timeout=1.0)))
+        return sorted({str(r.ok.key_expr) for r in replies if r.ok is not None})
+
+
+class _BusLogHandler(logging.Handler):
+    """Copies a service's log records to the bus key ``log``."""
+
+    LEVELS: ClassVar[dict[int, str]] = {10: "debug", 20: "info", 30: "warning", 40: "error", 50: "critical"}
+
+    def __init__(self, node: Node) -> None:
+        super().__init__(logging.INFO)
+        self._service = node.service
+        self._pub = node.session.declare_publisher(node.key(keys.LOG), encoding=MSGPACK)
+        node._closables.append(self._pub)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            level = self.LEVELS.get(record.levelno - record.levelno % 10, "info")
+            msg = Log(stamp=time.time_ns(), level=level, service=self._service, text=record.getMessage())
+            self._pub.put(codec.encode(msg))
+        except Exception:  # a log line must never take a service down
+            pass
+
+
+async def open_session(config: RobotConfig, *, mode: str = "client", log: logging.Logger | None = None,
+                       retry: bool = True) -> zenoh.Session:
+    """Open a Zenoh session to the robot's router, retrying while it is not up yet."""
+    log = log or logging.getLogger("icefloe")
+    endpoints = list(config.zenoh.connect)
+    delay = 0.1
+    while True:
+        try:
+            zc = zenoh_config(config, mode=mode, connect=endpoints)
+            return await asyncio.to_thread(zenoh.open, zc)
+        except zenoh.ZError as exc:
+            if not retry:
+                raise NotReachable(f"cannot reach a Zenoh router at {', '.join(endpoints)}: {exc}") from None
+            if delay >= 1.0:
+                log.warning("cannot reach a Zenoh router at %s yet; retrying", ", ".join(endpoints))
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, 5.0)
+
+
+# ---------------------------------------------------------------------- __main__ of a service
+
+
+def arguments(description: str, argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--config", help="robot config: a TOML file or a name in deploy/robots (default: sim)")
+    parser.add_argument("--connect", action="append", help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447")
+    parser.add_argument("--log-level", default="INFO")
+    return parser.parse_args(argv)
+
+
+def load_config(args: argparse.Namespace) -> RobotConfig:
+    """The robot config named by ``--config``, with ``--connect`` applied."""
+    cfg = config_mod.load(args.config)
+    if args.connect:
+        cfg = msgspec.structs.replace(cfg, zenoh=msgspec.structs.replace(cfg.zenoh, connect=args.connect))
+    return cfg
+
+
+def run(main: Callable[[RobotConfig], Awaitable[None]], argv: Sequence[str] | None = None,
+        description: str | None = None) -> None:
+    """Run a service's ``main(config)`` until it returns or SIGINT/SIGTERM arrives."""
+    args = arguments(description or main.__module__, argv)
+    logging.basicConfig(stream=sys.stderr, level=args.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        cfg = load_config(args)
+    except ConfigError as exc:
+        print(f"icefloe: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+    async def supervised() -> None:
+        loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
+        assert task is not None
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, task.cancel)
+        with contextlib.suppress(asyncio.CancelledError):
+            await main(cfg)
+
+    asyncio.run(supervised())

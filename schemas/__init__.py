@@ -1,0 +1,1 @@
+"""The public contract: message Structs, key table and codec."""

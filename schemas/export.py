@@ -1,0 +1,88 @@
+"""Generate ``schemas/json/<Message>.json``: one JSON Schema per message, for other languages.
+
+Run ``icefloe schemas`` after changing ``messages.py``; a test fails while the
+checked-in files are stale (``icefloe schemas --check``).
+
+The field docstrings of ``messages.py`` become each property's ``description``,
+and each schema names the keys that carry its message (``x-icefloe-keys``).
+"""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import itertools
+import json
+from pathlib import Path
+
+import msgspec
+
+from . import keys, messages
+
+JSON_DIR = Path(__file__).resolve().parent / "json"
+
+
+def message_types() -> list[type[messages.Message]]:
+    """Every concrete message Struct in messages.py, in source order."""
+    return [
+        obj for obj in vars(messages).values()
+        if isinstance(obj, type) and issubclass(obj, messages.Message) and obj is not messages.Message
+    ]
+
+
+def _field_docs() -> dict[tuple[str, str], str]:
+    """(class, field) -> the string literal written under the field in messages.py."""
+    tree = ast.parse(inspect.getsource(messages))
+    docs: dict[tuple[str, str], str] = {}
+    for cls in (n for n in tree.body if isinstance(n, ast.ClassDef)):
+        body = cls.body
+        for node, nxt in itertools.pairwise(body):
+            if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                    and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)
+                    and isinstance(nxt.value.value, str)):
+                docs[(cls.name, node.target.id)] = inspect.cleandoc(nxt.value.value)
+    return docs
+
+
+def schemas() -> dict[str, str]:
+    """File name -> JSON text, for every message."""
+    docs = _field_docs()
+    carried: dict[str, list[str]] = {}
+    for topic in keys.TABLE.values():
+        carried.setdefault(topic.type.__name__, []).append(f"icefloe/<robot>/{topic.name}")
+        if topic.reply is not None:
+            carried.setdefault(topic.reply.__name__, []).append(f"icefloe/<robot>/{topic.name} (reply)")
+    out = {}
+    for t in message_types():
+        schema = msgspec.json.schema(t)
+        for name, definition in schema.get("$defs", {}).items():
+            for field, prop in definition.get("properties", {}).items():
+                doc = docs.get((name, field))
+                if doc and "description" not in prop:
+                    prop["description"] = doc
+        schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+        schema["title"] = t.__name__
+        schema["x-icefloe-keys"] = carried.get(t.__name__, [])
+        out[f"{t.__name__}.json"] = json.dumps(schema, indent=2, sort_keys=True) + "\n"
+    return out
+
+
+def stale(directory: Path = JSON_DIR) -> list[str]:
+    """Files in ``directory`` that differ from what `schemas` generates (or are missing or extra)."""
+    want = schemas()
+    have = {p.name for p in directory.glob("*.json")} if directory.exists() else set()
+    wrong = [n for n, text in want.items() if not (directory / n).exists()
+             or (directory / n).read_text() != text]
+    return sorted(wrong + [n for n in have - set(want)])
+
+
+def write(directory: Path = JSON_DIR) -> list[str]:
+    """Regenerate the folder; returns the names written."""
+    directory.mkdir(parents=True, exist_ok=True)
+    want = schemas()
+    for p in directory.glob("*.json"):
+        if p.name not in want:
+            p.unlink()
+    for name, text in want.items():
+        (directory / name).write_text(text)
+    return sorted(want)

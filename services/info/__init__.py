@@ -1,0 +1,1 @@
+"""info: answers ``icefloe/<robot>/info`` with what this robot is (the smallest icefloe service)."""

@@ -1,0 +1,1 @@
+"""The simulated robot: world physics and wire-faithful board models."""

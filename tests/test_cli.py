@@ -1,0 +1,142 @@
+"""The `icefloe` command and `icefloe up`, as real processes over a real router."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from conftest import ROOT, Robot
+
+ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
+
+
+def icefloe(robot: Robot, *args: str, timeout: float = 20.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*ICEFLOE, *args, "--config", str(robot.config_path)], capture_output=True,
+                          text=True, timeout=timeout, cwd=ROOT)
+
+
+def wait_alive(robot: Robot, service: str, timeout: float = 15.0) -> str:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        out = icefloe(robot, "status").stdout
+        if service in out.split():
+            return out
+        time.sleep(0.2)
+    raise AssertionError(f"{service} not alive on {robot.name}: {out!r}")
+
+
+def test_two_processes_exchange_a_message(robot: Robot) -> None:
+    echo = subprocess.Popen([*ICEFLOE, "echo", "cmd/twist", "--count", "1", "--config", str(robot.config_path)],
+                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(1.5)
+    pub = icefloe(robot, "pub", "cmd/twist", '{"v": 0.1, "w": -0.2}', "--rate", "5", "--count", "10")
+    assert pub.returncode == 0, pub.stderr
+    out, _ = echo.communicate(timeout=10)
+    assert json.loads(out.splitlines()[0]) == {"v": 0.1, "w": -0.2}
+
+
+def test_pub_checks_the_schema_before_sending(robot: Robot) -> None:
+    bad = icefloe(robot, "pub", "cmd/twist", '{"v": "fast", "w": 0}')
+    assert bad.returncode == 2
+    assert "cmd/twist: Expected `float`, got `str` - at `$.v`" in bad.stderr
+
+
+def test_status_query_and_echo_log_against_a_service(robot: Robot) -> None:
+    log = subprocess.Popen([*ICEFLOE, "echo", "log", "--duration", "8", "--config", str(robot.config_path)],
+                           stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(1.5)
+    info = robot.start("info")
+    assert "info" in wait_alive(robot, "info")
+    answer = icefloe(robot, "query", "info")
+    assert json.loads(answer.stdout)["name"] == robot.name
+    info.stop()
+    log.send_signal(signal.SIGINT)
+    out, _ = log.communicate(timeout=10)
+    lines = [json.loads(line) for line in out.splitlines()]
+    assert any(e["service"] == "info" and "serving" in e["text"] for e in lines), out
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_service_exits_cleanly_on_signal(robot: Robot, sig: int) -> None:
+    info = robot.start("info")
+    wait_alive(robot, "info")
+    t0 = time.monotonic()
+    assert info.stop(sig, timeout=5.0) == 0
+    assert time.monotonic() - t0 < 5.0
+
+
+def test_status_fails_fast_without_a_router(tmp_path: Path) -> None:
+    cfg = tmp_path / "r.toml"
+    cfg.write_text(f'extends = "{ROOT}/deploy/robots/sim.toml"\n[zenoh]\nconnect = ["tcp/127.0.0.1:9"]\n')
+    res = subprocess.run([*ICEFLOE, "status", "--config", str(cfg)], capture_output=True, text=True, timeout=20)
+    assert res.returncode == 2
+    assert "cannot reach a Zenoh router at tcp/127.0.0.1:9" in res.stderr
+
+
+def test_up_rejects_a_bad_config_and_starts_nothing(tmp_path: Path) -> None:
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text('[hwbridge]\ndeadman_s = "soon"\n')
+    res = subprocess.run([*ICEFLOE, "up", str(cfg), "--no-viz"], capture_output=True, text=True, timeout=20)
+    assert res.returncode == 2
+    assert "bad.toml: hwbridge.deadman_s: Expected `float`, got `str`" in res.stderr
+
+
+def _children_of(config_path: Path) -> list[int]:
+    """PIDs of every process whose command line names this config."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
+            if str(config_path) in cmd and int(entry.name) != os.getpid():
+                pids.append(int(entry.name))
+    return pids
+
+
+def test_up_runs_restarts_and_stops_everything(tmp_path: Path) -> None:
+    from conftest import free_port
+
+    port = free_port()
+    cfg = tmp_path / "up.toml"
+    cfg.write_text(
+        f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "uptest{port}"\nservices = ["info", "nosuch"]\n'
+        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
+    )
+    robot = Robot.__new__(Robot)
+    robot.config_path = cfg
+    out = open(tmp_path / "up.log", "w+")  # noqa: SIM115
+    up = subprocess.Popen([*ICEFLOE, "up", str(cfg), "--no-viz"], stdout=out, stderr=subprocess.STDOUT,
+                          cwd=ROOT, start_new_session=True)
+    try:
+        wait_alive(robot, "info")
+        wait_alive(robot, "router")
+        info_pid = next(p for p in _children_of(cfg) if "services.info" in Path(f"/proc/{p}/cmdline").read_text())
+        os.kill(info_pid, signal.SIGKILL)  # a crash
+        time.sleep(0.5)
+        wait_alive(robot, "info")
+        up.send_signal(signal.SIGINT)
+        assert up.wait(20) == 0
+        time.sleep(0.2)
+        assert _children_of(cfg) == []
+        log = (tmp_path / "up.log").read_text()
+        assert "not available yet, skipped: nosuch" in log
+        assert "[info  ] exited with code -9; restarting in 1 s" in log
+        assert "[router] router for" in log
+        assert "all stopped" in log
+    finally:
+        if up.poll() is None:
+            os.killpg(up.pid, signal.SIGKILL)
+        out.close()
+
+
+def test_schemas_check_passes_on_the_checked_in_files() -> None:
+    res = subprocess.run([*ICEFLOE, "schemas", "--check"], capture_output=True, text=True, timeout=30)
+    assert res.returncode == 0, res.stdout

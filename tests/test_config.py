@@ -1,0 +1,62 @@
+"""Robot config files: defaults, `extends`, placeholders, and errors that name the key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from icefloe import config
+from icefloe.errors import ConfigError
+
+
+def write(tmp_path: Path, text: str, name: str = "robot.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_embedded_default_is_a_simulated_penguinpi_named_sim() -> None:
+    cfg = config.load()
+    assert (cfg.name, cfg.board.kind, cfg.board.backend) == ("sim", "penguinpi", "sim")
+    assert cfg.zenoh.listen == ["tcp/0.0.0.0:7447"]
+    assert cfg.board.serial_port == str(cfg.runtime_dir / "ttyPPI")
+
+
+def test_every_shipped_robot_config_loads() -> None:
+    for path in config.ROBOTS_DIR.glob("*.toml"):
+        assert config.load(path).name
+
+
+def test_extends_merges_tables(tmp_path: Path) -> None:
+    base = write(tmp_path, 'name = "base"\n[hwbridge]\nrate_hz = 500.0\ndeadman_s = 0.3\n', "base.toml")
+    p = write(tmp_path, f'extends = "{base.name}"\nname = "r2"\nrun_dir = "/x"\n[hwbridge]\nrate_hz = 250.0\n')
+    cfg = config.load(p)
+    assert (cfg.name, cfg.hwbridge.rate_hz, cfg.hwbridge.deadman_s) == ("r2", 250.0, 0.3)
+    assert cfg.board.sim_socket == "/x/icoboard.sock"
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ('[hwbridge]\nrate_hz = "fast"\n', "hwbridge.rate_hz: Expected `float`, got `str`"),
+        ("[hwbridge]\nrat_hz = 1.0\n", "[hwbridge]: Object contains unknown field `rat_hz`"),
+        ('[board]\nkind = "arduino"\n', "board.kind: Invalid enum value 'arduino'"),
+        ("name = \n", "not valid TOML"),
+        ('name = "a/b"\n', "name: 'a/b' is not a usable robot name"),
+        ('extends = "missing.toml"\n', "missing.toml: no such config file"),
+    ],
+)
+def test_bad_files_name_the_file_and_key(tmp_path: Path, text: str, message: str) -> None:
+    p = write(tmp_path, text)
+    with pytest.raises(ConfigError) as err:
+        config.load(p)
+    assert message in str(err.value)
+    assert "robot.toml" in str(err.value) or "missing.toml" in str(err.value)
+
+
+def test_extends_loop_is_an_error(tmp_path: Path) -> None:
+    write(tmp_path, 'extends = "b.toml"\n', "a.toml")
+    write(tmp_path, 'extends = "a.toml"\n', "b.toml")
+    with pytest.raises(ConfigError, match="loops back"):
+        config.load(tmp_path / "a.toml")

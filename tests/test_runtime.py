@@ -1,0 +1,127 @@
+"""The runtime over real Zenoh sessions: a router process and two sessions in this process."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+
+import msgspec
+import pytest
+from conftest import Robot, wait_for
+from icefloe.schemas import codec, keys
+from icefloe.schemas import messages as m
+
+from icefloe.errors import NotReachable
+
+
+async def next_of(sub, timeout: float = 5.0):
+    return await asyncio.wait_for(sub.__anext__(), timeout)
+
+
+async def settle() -> None:
+    """Let the router propagate new declarations before the first put."""
+    await asyncio.sleep(0.3)
+
+
+async def test_typed_publish_and_subscribe(robot: Robot) -> None:
+    async with robot.node("a") as a, robot.node("b") as b:
+        sub = b.subscribe(keys.ODOM_POSE, latest=False)
+        pub = a.publisher(keys.ODOM_POSE)
+        await settle()
+        pub.put(m.Pose(stamp=1, x=1.0, y=2.0, theta=0.5))
+        got = await next_of(sub)
+        assert got == m.Pose(stamp=1, x=1.0, y=2.0, theta=0.5)
+        with pytest.raises(TypeError, match="carries Pose, not Twist"):
+            pub.put(m.Twist(v=0.0, w=0.0))
+
+
+async def test_commands_are_fifo_and_state_is_latest(robot: Robot) -> None:
+    async with robot.node("a") as a, robot.node("b") as b:
+        fifo = b.subscribe(keys.TWIST)  # an "in" key: FIFO by default
+        latest = b.subscribe(keys.ODOM_POSE)  # an "out" key: latest value by default
+        twist, pose = a.publisher(keys.TWIST), a.publisher(keys.ODOM_POSE)
+        await settle()
+        for i in range(20):
+            twist.put(m.Twist(v=i / 100, w=0.0))
+            pose.put(m.Pose(stamp=i, x=float(i), y=0.0, theta=0.0))
+        await wait_for(lambda: fifo.pending() == 20 and latest.skipped >= 1, timeout=5)
+        assert [(await next_of(fifo)).v for _ in range(20)] == [i / 100 for i in range(20)]
+        assert (await next_of(latest)).stamp == 19
+        assert latest.pending() == 0
+
+
+async def test_bad_payloads_are_dropped_with_one_line_naming_key_and_field(
+    robot: Robot, caplog: pytest.LogCaptureFixture
+) -> None:
+    key = keys.key(robot.name, keys.TWIST)
+    bad = [
+        (msgspec.msgpack.encode({"v": "fast", "w": 0.0}), codec.MSGPACK, "$.v"),
+        (codec.encode(m.Twist(v=1.0, w=2.0))[:-3], codec.MSGPACK, "truncated"),
+        (b'{"v": 0.1}', codec.JSON, "missing required field `w`"),
+        (b'{"v": 0.1, "w": 0, "speed": 3}', codec.JSON, "unknown field `speed`"),
+        (msgspec.msgpack.encode({"v": math.nan, "w": 0.0}), codec.MSGPACK, "`v` must be a finite"),
+        (b'{"v": 0.1, "w": 0}', "text/csv", "unknown encoding 'text/csv'"),
+    ]
+    caplog.set_level(logging.WARNING, logger="icefloe.victim")
+    async with robot.node("sender") as sender, robot.node("victim") as victim, robot.node("reader") as reader:
+        bus_log = reader.subscribe(keys.LOG, latest=False)
+        sub = victim.subscribe(keys.TWIST)
+        await settle()
+        for payload, encoding, _ in bad:
+            sender.session.put(key, payload, encoding=encoding)
+        sender.session.put(key, b'{"v": 0.25, "w": 0}', encoding=codec.JSON)
+        assert await next_of(sub) == m.Twist(v=0.25, w=0.0)  # still running, the good one got through
+        assert sub.rejected == len(bad)
+        lines = [r.getMessage() for r in caplog.records if r.name == "icefloe.victim"]
+        assert len(lines) == len(bad)
+        for line, (_, _, names) in zip(lines, bad, strict=True):
+            assert key in line and names in line, line
+        # The same lines are on the bus key `log`, from the service that dropped them.
+        on_bus = [await next_of(bus_log) for _ in bad]
+        assert all(entry.service == "victim" and entry.level == "warning" for entry in on_bus)
+        assert [e.text for e in on_bus] == lines
+
+
+async def test_queryable_answers_and_rejects_bad_requests(robot: Robot) -> None:
+    async def reset(request: m.PoseReset) -> m.Pose:
+        return m.Pose(stamp=7, x=request.x, y=request.y, theta=request.theta)
+
+    async with robot.node("server") as server, robot.node("client") as client:
+        server.queryable(keys.ODOM_RESET, reset)
+        await settle()
+        assert (await client.query(keys.ODOM_RESET, m.PoseReset(x=1.5))).x == 1.5
+        assert (await client.query(keys.ODOM_RESET)).x == 0.0  # an empty request is the default
+        # A request with a field the message does not have gets an error reply naming it.
+        errors = await asyncio.to_thread(_errors_of, client, b'{"z": 1}')
+        assert len(errors) == 1 and "unknown field `z`" in errors[0]
+
+
+def _errors_of(client, payload: bytes) -> list[str]:
+    replies = client.session.get(client.key(keys.ODOM_RESET), payload=payload, encoding=codec.JSON, timeout=2.0)
+    return [r.err.payload.to_string() for r in replies if r.err is not None]
+
+
+async def test_liveliness_lists_services_and_forgets_closed_ones(robot: Robot) -> None:
+    async with robot.node("watcher") as watcher:
+        async with robot.node("odometry"):
+            await settle()
+            alive = await watcher.alive()
+            assert keys.alive_key(robot.name, "odometry") in alive
+            assert keys.alive_key(robot.name, "watcher") in alive
+        await asyncio.sleep(0.3)
+        assert keys.alive_key(robot.name, "odometry") not in await watcher.alive()
+
+
+async def test_no_router_fails_fast_when_asked_to(make_robot) -> None:
+    from conftest import free_port
+
+    from icefloe.runtime import Node
+
+    robot = make_robot()
+    cfg = msgspec.structs.replace(
+        robot.config, zenoh=msgspec.structs.replace(robot.config.zenoh, connect=[f"tcp/127.0.0.1:{free_port()}"])
+    )
+    with pytest.raises(NotReachable, match=r"cannot reach a Zenoh router at tcp/127\.0\.0\.1:"):
+        async with Node("cli", cfg, retry=False):
+            pass
