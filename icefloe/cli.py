@@ -10,6 +10,8 @@
     icefloe hz KEY                             message rate of a key
     icefloe schemas [--check]                  regenerate schemas/json (or check it is current)
     icefloe config [CONFIG]                    check a robot config and print it resolved
+    icefloe credentials [CONFIG] [--host IP]   make the robot's credentials file (once)
+    icefloe router --lab DIR                   a lab router for the robots whose credentials are in DIR
 
 KEY is a full key (``icefloe/sim/odom/pose``, wildcards allowed) or a name from
 the key table (``odom/pose``), taken on the robot named by ``--robot`` or the
@@ -198,6 +200,7 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--config", help="robot config (default: the simulated robot)")
         sp.add_argument("--connect", action="append", help="Zenoh endpoint, e.g. tcp/10.0.0.5:7447")
         sp.add_argument("--robot", help="robot name (default: the config's)")
+        sp.add_argument("--credentials", help="a robot's credentials file (name, address, user, password)")
         return sp
 
     up = sub.add_parser("up", help="run every service of a robot")
@@ -208,6 +211,11 @@ def _parser() -> argparse.ArgumentParser:
     up.add_argument("--skip", help="comma-separated services not to run")
     router = sub.add_parser("router", help="run the Zenoh router only")
     router.add_argument("config", nargs="?")
+    router.add_argument("--lab", help="folder of robots' credentials files: route and guard all of them")
+    creds = sub.add_parser("credentials", help="make this robot's credentials file if it has none")
+    creds.add_argument("config", nargs="?")
+    creds.add_argument("--host", help="the robot's address, written into the file for laptops")
+    creds.add_argument("--replace", action="store_true", help="make a new password even if one exists")
     bus("status", "which services are alive")
     bus("topics", "keys seen, with rates").add_argument("--duration", type=float, default=3.0)
     echo = bus("echo", "print decoded messages as JSON lines")
@@ -251,6 +259,51 @@ def _up(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bus_config(args: argparse.Namespace) -> RobotConfig:
+    """The config of a bus command, with --connect and --credentials applied."""
+    cfg = load_config(args)
+    if args.credentials:
+        from .credentials import read
+
+        creds = read(args.credentials)
+        zenoh = msgspec.structs.replace(cfg.zenoh, user=creds.user, password=creds.password,
+                                        connect=args.connect or creds.connect or cfg.zenoh.connect)
+        cfg = msgspec.structs.replace(cfg, name=creds.robot, zenoh=zenoh)
+        args.robot = args.robot or creds.robot
+    return cfg
+
+
+def _router(args: argparse.Namespace) -> int:
+    from . import router
+    from .runtime import run
+
+    if not args.lab:
+        run(router.main, ["--config", args.config] if args.config else [])
+        return 0
+    owners = router.lab_owners(Path(args.lab))
+
+    async def lab(config: RobotConfig) -> None:
+        names = ", ".join(robot for robot, _, _ in owners)
+        await router.serve(config, router.router_config(config, owners), f"lab router for {names}")
+
+    run(lab, ["--config", args.config] if args.config else [])
+    return 0
+
+
+def _credentials(args: argparse.Namespace) -> int:
+    from .credentials import make
+
+    cfg = config_mod.load(args.config)
+    if not cfg.zenoh.credentials:
+        raise ConfigError(f"{cfg.source}: zenoh.credentials is not set: say where the file goes")
+    port = cfg.zenoh.listen[0].rsplit(":", 1)[-1] if cfg.zenoh.listen else "7447"
+    connect = [f"tcp/{args.host}:{port}"] if args.host else []
+    path, created = make(cfg.zenoh.credentials, cfg.name, connect, replace=args.replace)
+    # The password is never printed: whoever has the robot in hand reads the file (or the OLED).
+    print(f"{'made' if created else 'kept'} {path} for robot {cfg.name!r} (mode 0600)")
+    return 0
+
+
 def _sim_override(path: Path, cfg: RobotConfig) -> Path:
     """A config that extends ``path`` with the simulated board (for `up --sim`)."""
     out = cfg.runtime_dir / "sim-override.toml"
@@ -289,12 +342,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(json.dumps(msgspec.to_builtins(cfg), indent=2))
             return 0
         if args.command == "router":
-            from . import router
-            from .runtime import run
-
-            run(router.main, ["--config", args.config] if args.config else [])
-            return 0
-        cli = _Cli(args, load_config(args))
+            return _router(args)
+        if args.command == "credentials":
+            return _credentials(args)
+        cli = _Cli(args, _bus_config(args))
         return asyncio.run(getattr(cli, args.command)())
     except (ConfigError, IcefloeError) as exc:
         print(f"icefloe: {exc}", file=sys.stderr)

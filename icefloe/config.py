@@ -78,10 +78,11 @@ class Hwbridge(Section):
     """SCHED_FIFO priority of the cycle (if the OS allows it)."""
     cpu: int = -1
     """CPU to pin the cycle to (-1 = the last CPU)."""
-    kp: float = 4000.0
-    """icoBoard wheel PI controller: duty counts per (m/s) of speed error."""
-    ki: float = 60000.0
-    """Duty counts per (m/s * s) of integrated error."""
+    kp: float = 20000.0
+    """icoBoard wheel PI controller: duty counts (32767 = 100 %) per (m/s) of speed error.
+    The motors need ~48000 counts per m/s at steady state (docs/hwbridge.md)."""
+    ki: float = 200000.0
+    """Duty counts per (m/s * s) of integrated error (integral time kp/ki = 0.1 s)."""
     speed_window_s: float = 0.05
     """Measured wheel speed = encoder counts over this window, s (one count is ~0.5 mm)."""
 
@@ -222,10 +223,15 @@ class Zenoh(Section):
     """Where the robot's router listens; laptops connect here."""
     connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     """Where the robot's own services connect (its router)."""
+    access_control: bool = False
+    """Require credentials: anyone may read, only this robot's user may command it (docs/lab.md)."""
+    credentials: str = ""
+    """File with this robot's user and password (made by `icefloe credentials`; never committed)."""
     user: str = ""
+    """Zenoh user (normally read from `credentials`)."""
     password: str = ""
     config: str = ""
-    """Extra Zenoh JSON5 config file for the router (access control, TLS)."""
+    """Extra Zenoh JSON5 config file merged into the router's (e.g. TLS listeners)."""
 
 
 class RobotConfig(Section):
@@ -312,6 +318,12 @@ def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
     run_dir = str(config.runtime_dir)
     expanded = _expand(msgspec.to_builtins(config), {"run_dir": run_dir, "name": config.name})
     expanded["source"] = source
+    zenoh = expanded["zenoh"]
+    if zenoh["credentials"] and not zenoh["user"] and Path(zenoh["credentials"]).expanduser().exists():
+        from .credentials import read
+
+        creds = read(zenoh["credentials"])
+        zenoh["user"], zenoh["password"] = creds.user, creds.password
     return msgspec.convert(expanded, RobotConfig)
 
 

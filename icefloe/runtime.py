@@ -49,6 +49,7 @@ import zenoh
 
 from . import config as config_mod
 from .config import RobotConfig
+from .credentials import GUEST_PASSWORD, GUEST_USER
 from .errors import BadPayload, ConfigError, NotReachable
 from .schemas import codec, keys
 from .schemas.keys import Topic
@@ -65,8 +66,13 @@ def zenoh_config(
     mode: str = "client",
     connect: Sequence[str] | None = None,
     listen: Sequence[str] | None = None,
+    guest: bool = False,
 ) -> zenoh.Config:
-    """Zenoh config of a session: no multicast scouting, credentials from the robot config."""
+    """Zenoh config of a session: no multicast scouting, credentials from the robot config.
+
+    Without a user of its own, a session to a robot with access control logs in as the
+    read-only `guest` (see icefloe/credentials.py).
+    """
     zc = zenoh.Config()
     if config.zenoh.config and mode == "router":
         zc = zenoh.Config.from_file(config.zenoh.config)
@@ -74,9 +80,12 @@ def zenoh_config(
     zc.insert_json5("scouting/multicast/enabled", "false")
     zc.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
     zc.insert_json5("listen/endpoints", json.dumps(list(listen or [])))
-    if config.zenoh.user:
-        zc.insert_json5("transport/auth/usrpwd/user", json.dumps(config.zenoh.user))
-        zc.insert_json5("transport/auth/usrpwd/password", json.dumps(config.zenoh.password))
+    user, password = config.zenoh.user, config.zenoh.password
+    if not user and (guest or config.zenoh.access_control):
+        user, password = GUEST_USER, GUEST_PASSWORD
+    if user:
+        zc.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+        zc.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
     return zc
 
 
@@ -377,6 +386,14 @@ async def open_session(config: RobotConfig, *, mode: str = "client", log: loggin
             zc = zenoh_config(config, mode=mode, connect=endpoints)
             return await asyncio.to_thread(zenoh.open, zc)
         except zenoh.ZError as exc:
+            if not config.zenoh.user and not config.zenoh.access_control:
+                # Perhaps the robot requires credentials: try the read-only guest once.
+                with contextlib.suppress(zenoh.ZError):
+                    session = await asyncio.to_thread(
+                        zenoh.open, zenoh_config(config, mode=mode, connect=endpoints, guest=True))
+                    log.warning("connected as the read-only user %r: this session cannot command the robot",
+                                GUEST_USER)
+                    return session
             if not retry:
                 raise NotReachable(f"cannot reach a Zenoh router at {', '.join(endpoints)}: {exc}") from None
             if delay >= 1.0:

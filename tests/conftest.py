@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-from signal import SIGINT, SIGKILL
 import socket
 import subprocess
 import sys
@@ -21,6 +20,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from signal import SIGINT, SIGKILL
 
 import pytest
 
@@ -76,7 +76,8 @@ class Proc:
 class Robot:
     """A test robot: a config file, its router, and the processes a test started."""
 
-    def __init__(self, tmp: Path, extra_toml: str = "", base: Path = SIM_CONFIG) -> None:
+    def __init__(self, tmp: Path, extra_toml: str = "", base: Path = SIM_CONFIG,
+                 access_control: bool = False) -> None:
         self.tmp = tmp
         self.port = free_port()
         self.name = f"t{uuid.uuid4().hex[:8]}"
@@ -84,9 +85,16 @@ class Robot:
         run_dir.mkdir(exist_ok=True)
         endpoint = f"tcp/127.0.0.1:{self.port}"
         self.config_path = tmp / f"{self.name}.toml"
+        self.credentials_path = tmp / f"{self.name}.credentials"
+        zenoh_extra = ""
+        if access_control:  # as deploy/up.sh does: credentials first, then the guarded router
+            from icefloe.credentials import make
+
+            make(self.credentials_path, self.name, [endpoint])
+            zenoh_extra = f'access_control = true\ncredentials = "{self.credentials_path}"\n'
         self.config_path.write_text(
             f'extends = "{base}"\nname = "{self.name}"\nrun_dir = "{run_dir}"\n'
-            f"{extra_toml}\n\n[zenoh]\nlisten = [\"{endpoint}\"]\nconnect = [\"{endpoint}\"]\n"
+            f"{extra_toml}\n\n[zenoh]\nlisten = [\"{endpoint}\"]\nconnect = [\"{endpoint}\"]\n{zenoh_extra}"
         )
         self.config: RobotConfig = config_mod.load(self.config_path)
         self.procs: list[Proc] = []
@@ -130,10 +138,10 @@ def _wait_port(port: int, proc: Proc, timeout: float = 15.0) -> None:
 def make_robot(tmp_path: Path) -> Iterator[Callable[..., Robot]]:
     robots: list[Robot] = []
 
-    def make(extra_toml: str = "", base: Path = SIM_CONFIG) -> Robot:
+    def make(extra_toml: str = "", base: Path = SIM_CONFIG, access_control: bool = False) -> Robot:
         sub = tmp_path / f"robot{len(robots)}"
         sub.mkdir()
-        robots.append(Robot(sub, extra_toml, base))
+        robots.append(Robot(sub, extra_toml, base, access_control))
         return robots[-1]
 
     yield make

@@ -1,0 +1,111 @@
+"""Access control: anyone may read a robot, only its own credentials may command it."""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+from pathlib import Path
+
+import msgspec
+import pytest
+from conftest import ROOT, Robot
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+
+from icefloe.credentials import make, read
+from icefloe.errors import NotReachable
+from icefloe.runtime import Node
+
+
+def session(robot: Robot, user: str = "", password: str = "") -> Node:
+    """A laptop's session: with the given credentials, or none at all."""
+    zenoh = msgspec.structs.replace(robot.config.zenoh, user=user, password=password, access_control=False,
+                                    credentials="")
+    return Node("laptop", msgspec.structs.replace(robot.config, zenoh=zenoh), retry=False, announce=False)
+
+
+async def reaches(sender: Node, sub, topic, message) -> bool:
+    """Does ``message`` from ``sender`` arrive at ``sub``? (a few tries, then a second of silence)"""
+    pub = sender.publisher(topic)
+    await asyncio.sleep(0.3)
+    for _ in range(3):
+        pub.put(message)
+        await asyncio.sleep(0.05)
+    try:
+        await asyncio.wait_for(sub.__anext__(), 1.0)
+        return True
+    except TimeoutError:
+        return False
+
+
+async def test_only_the_robots_own_credentials_command_it(make_robot, tmp_path: Path) -> None:
+    robot = make_robot(access_control=True)
+    own = read(robot.credentials_path)
+    other_path, _ = make(tmp_path / "other.credentials", "other-robot")
+    other = read(other_path)
+    assert robot.config.zenoh.user == own.user  # the robot's services use its credentials
+
+    async with robot.node("hwbridge-stand-in") as service:
+        twist = service.subscribe(keys.TWIST)
+        pose = service.publisher(keys.ODOM_POSE)
+        async with session(robot) as guest:  # no credentials: the read-only guest
+            poses = guest.subscribe(keys.ODOM_POSE)
+            await asyncio.sleep(0.3)
+            pose.put(m.Pose(stamp=1, x=1.0, y=0.0, theta=0.0))
+            assert (await asyncio.wait_for(poses.__anext__(), 3)).x == 1.0
+            assert not await reaches(guest, twist, keys.TWIST, m.Twist(v=0.2, w=0.0))
+            with pytest.raises(NotReachable):  # nor call its queryables
+                await guest.query(keys.INFO, timeout=1.0)
+        with pytest.raises(NotReachable):  # another robot's credentials: not a user of this robot
+            async with session(robot, other.user, other.password):
+                pass
+        async with session(robot, own.user, own.password) as owner:
+            assert await reaches(owner, twist, keys.TWIST, m.Twist(v=0.1, w=0.0))
+        with pytest.raises(NotReachable):
+            async with session(robot, own.user, "not the password"):
+                pass
+        assert robot.router.alive()  # the robot kept running through all of it
+
+
+def test_cli_commands_with_a_credentials_file(make_robot) -> None:
+    robot = make_robot(access_control=True)
+    echo = subprocess.Popen([sys.executable, "-m", "icefloe.cli", "echo", "cmd/twist", "--count", "1",
+                             "--duration", "10", "--credentials", str(robot.credentials_path)],
+                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    import time
+
+    time.sleep(1.5)
+    pub = subprocess.run([sys.executable, "-m", "icefloe.cli", "pub", "cmd/twist", '{"v": 0.1, "w": 0}',
+                          "--rate", "5", "--count", "5", "--credentials", str(robot.credentials_path)],
+                         capture_output=True, text=True, cwd=ROOT, timeout=30)
+    assert pub.returncode == 0, pub.stderr
+    out, _ = echo.communicate(timeout=15)
+    assert '"v": 0.1' in out
+
+
+def test_credentials_are_made_once_private_and_never_printed(tmp_path: Path) -> None:
+    cfg = tmp_path / "r.toml"
+    creds = tmp_path / "secret" / "r9.credentials"
+    cfg.write_text(f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "r9"\n'
+                   f'[zenoh]\naccess_control = true\ncredentials = "{creds}"\n')
+    run = [sys.executable, "-m", "icefloe.cli", "credentials", str(cfg), "--host", "10.0.0.9"]
+    first = subprocess.run(run, capture_output=True, text=True, cwd=ROOT, timeout=30)
+    assert first.returncode == 0 and "made" in first.stdout
+    made = read(creds)
+    assert made.robot == "r9" and made.connect == ["tcp/10.0.0.9:7447"] and len(made.password) >= 20
+    assert creds.stat().st_mode & 0o777 == 0o600
+    assert made.password not in first.stdout + first.stderr
+    again = subprocess.run(run, capture_output=True, text=True, cwd=ROOT, timeout=30)
+    assert "kept" in again.stdout and read(creds).password == made.password
+
+
+def test_a_guarded_router_without_credentials_refuses_to_start(tmp_path: Path) -> None:
+    cfg = tmp_path / "r.toml"
+    cfg.write_text(f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "r8"\n'
+                   f'[zenoh]\nlisten = ["tcp/127.0.0.1:0"]\naccess_control = true\n'
+                   f'credentials = "{tmp_path}/missing.credentials"\n')
+    res = subprocess.run([sys.executable, "-m", "icefloe.router", "--config", str(cfg)],
+                         capture_output=True, text=True, cwd=ROOT, timeout=30)
+    assert res.returncode != 0
+    assert "access_control is on but there are no credentials" in res.stderr
