@@ -1,13 +1,44 @@
 #!/usr/bin/env bash
 # Set up and run an icefloe robot.
 #
-#   ./deploy/up.sh                 the simulated robot, every service, in the foreground (Ctrl-C stops it)
-#   ./deploy/up.sh penguin1        the robot config deploy/robots/penguin1.toml
-#   ./deploy/up.sh --no-viz        without opening the Rerun viewer
+#   ./deploy/up.sh                     laptop/CI: the simulated robot, every service, in the foreground
+#   ./deploy/up.sh penguin1            a robot config: deploy/robots/penguin1.toml (or a path)
+#   ./deploy/up.sh --no-viz            without opening the Rerun viewer
+#   ./deploy/up.sh penguin1 --dry-run  print every step of a robot install, change nothing
 #
-# Any argument is passed to `icefloe up` (see `.venv/bin/icefloe up --help`).
+# On a Raspberry Pi whose config has [board] backend = "hardware", it installs the robot instead:
+# system user, device permissions, boot config, credentials, one systemd unit per service
+# (see icefloe/deploy.py and docs/deploy.md); ./deploy/down.sh undoes it.
+# Other arguments go to `icefloe up` (see `.venv/bin/icefloe up --help`).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . deploy/setup.sh
-ensure_venv viz
-exec .venv/bin/icefloe up "$@"
+
+config="" mode=run
+for arg in "$@"; do
+    case "$arg" in
+        --dry-run) mode=dry ;;
+        --install) mode=install ;;
+        -*) ;;
+        *) [ -z "$config" ] && config="$arg" ;;
+    esac
+done
+
+is_pi() { grep -qs "Raspberry Pi" /proc/device-tree/model; }
+
+if [ "$mode" = dry ] && [ -x .venv/bin/icefloe ]; then :   # a dry run plans with what is installed
+elif is_pi || [ "$mode" != run ]; then ensure_venv robot
+else ensure_venv viz
+fi
+if [ "$mode" = run ] && is_pi && [ -n "$config" ] \
+    && .venv/bin/icefloe config "$config" | grep -q '"backend": "hardware"'; then
+    mode=install
+fi
+
+case "$mode" in
+    dry) exec .venv/bin/python -m icefloe.deploy install "${config:-sim}" --dry-run ;;
+    install)
+        host=$(hostname -I 2>/dev/null | cut -d' ' -f1 || true)
+        exec sudo .venv/bin/python -m icefloe.deploy install "${config:-sim}" --host "$host" ;;
+    run) exec .venv/bin/icefloe up "$@" ;;
+esac

@@ -1,0 +1,82 @@
+"""deploy/up.sh on a robot, as far as a machine without a Pi allows: the dry run and the units."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import ROOT
+
+from icefloe import config, deploy
+
+
+@pytest.fixture(scope="module")
+def dry_run() -> str:
+    res = subprocess.run(["./deploy/up.sh", "penguin1", "--dry-run"], capture_output=True, text=True,
+                         cwd=ROOT, timeout=300)
+    assert res.returncode == 0, res.stderr
+    return res.stdout
+
+
+def test_dry_run_lists_every_unit_and_changes_nothing(dry_run: str) -> None:
+    assert "icefloe install for robot 'penguin1'" in dry_run
+    assert "(dry run: nothing changed)" in dry_run
+    for unit in ("icefloe.target", "icefloe-router.service", "icefloe-hwbridge.service", "icefloe@.service"):
+        assert f"write /etc/systemd/system/{unit}" in dry_run
+        assert not (Path("/etc/systemd/system") / unit).exists()
+    enable = next(line for line in dry_run.splitlines() if line.startswith("  run: systemctl enable --now"))
+    for service in ("odometry", "camera", "power", "oled", "webapi", "localizer"):
+        assert f"icefloe@{service}.service" in enable
+    assert "icefloe@sim.service" not in enable  # a real robot runs no simulator
+
+
+def test_dry_run_shows_the_real_time_settings_of_hwbridge(dry_run: str) -> None:
+    unit = dry_run.split("write /etc/systemd/system/icefloe-hwbridge.service")[1].split("\n* ")[0]
+    for setting in ("CPUSchedulingPolicy=fifo", "CPUSchedulingPriority=", "LimitMEMLOCK=infinity",
+                    "LimitRTPRIO=", "CPUAffinity=", "KillSignal=SIGINT", "Restart=on-failure"):
+        assert setting in unit, setting
+    assert "isolcpus=" in dry_run
+
+
+def test_dry_run_shows_the_permission_steps(dry_run: str) -> None:
+    assert "usermod -aG dialout,spi,i2c,gpio,video icefloe" in dry_run
+    assert "write /etc/udev/rules.d/99-icefloe.rules" in dry_run
+    assert 'SUBSYSTEM=="spidev", GROUP="spi"' in dry_run
+    assert "enable_uart=1" in dry_run and "dtparam=spi=on" in dry_run and "dtparam=i2c_arm=on" in dry_run
+    assert "console=serial0" in dry_run
+    assert "icefloe.cli credentials" in dry_run and "chown icefloe:icefloe /etc/icefloe/penguin1.credentials" in dry_run
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+def test_units_pass_systemd_analyze_verify(tmp_path: Path) -> None:
+    cfg = config.load("penguin1")
+    names = []
+    for name, text in deploy.units(cfg, Path(cfg.source).resolve(), sys.executable).items():
+        if name.endswith("@.service"):
+            name = name.replace("@.service", "@odometry.service")  # verify an instance of the template
+        (tmp_path / name).write_text(text)
+        names.append(f"./{name}")
+    res = subprocess.run(["systemd-analyze", "verify", "--man=no", *names], capture_output=True, text=True,
+                         cwd=tmp_path, timeout=60)
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_ensure_lines_appends_only_what_is_missing(tmp_path: Path) -> None:
+    boot = tmp_path / "config.txt"
+    boot.write_text("# pi\nenable_uart=1\n")
+    action = deploy.Action("boot", path=boot, ensure_lines=deploy.BOOT_LINES)
+    action.do()
+    action.do()  # idempotent
+    lines = boot.read_text().splitlines()
+    assert lines.count("enable_uart=1") == 1 and "dtparam=spi=on" in lines
+
+
+def test_down_dry_run_removes_units(dry_run: str) -> None:
+    res = subprocess.run(["./deploy/down.sh", "penguin1", "--dry-run"], capture_output=True, text=True,
+                         cwd=ROOT, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert "systemctl disable --now icefloe.target" in res.stdout
+    assert "rm -f /etc/systemd/system/icefloe-hwbridge.service" in res.stdout
