@@ -48,7 +48,7 @@ def _receive(config_path: str, variant: str, count: int) -> list[int]:
     from icefloe.schemas import messages as m
 
     from icefloe import config as config_mod
-    from icefloe.runtime import Node, zenoh_config
+    from icefloe.runtime import Node, run_async, zenoh_config
 
     cfg = config_mod.load(config_path)
     latencies: list[int] = []
@@ -97,7 +97,7 @@ def _receive(config_path: str, variant: str, count: int) -> list[int]:
                 if len(latencies) >= count:
                     break
 
-    asyncio.run(asyncio.wait_for(run(), 60))
+    run_async(asyncio.wait_for(run(), 60))
     _ = codec  # same codec as the raw variant
     return latencies
 
@@ -107,7 +107,7 @@ def _send(config_path: str, variant: str, count: int, rate: float) -> None:
     from icefloe.schemas import messages as m
 
     from icefloe import config as config_mod
-    from icefloe.runtime import MSGPACK, Node, zenoh_config
+    from icefloe.runtime import MSGPACK, Node, run_async, zenoh_config
 
     cfg = config_mod.load(config_path)
     period = 1.0 / rate
@@ -137,7 +137,7 @@ def _send(config_path: str, variant: str, count: int, rate: float) -> None:
                 await asyncio.sleep(period)
             await asyncio.sleep(0.5)
 
-    asyncio.run(run())
+    run_async(run())
 
 
 def _round(config_path: Path, variant: str, count: int, rate: float) -> list[int]:

@@ -37,7 +37,7 @@ import msgspec
 from . import config as config_mod
 from .config import RobotConfig
 from .errors import BadPayload, ConfigError, IcefloeError
-from .runtime import Node, RawSample, load_config
+from .runtime import Node, RawSample, load_config, run_async
 from .schemas import codec, keys
 
 
@@ -346,7 +346,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "credentials":
             return _credentials(args)
         cli = _Cli(args, _bus_config(args))
-        return asyncio.run(getattr(cli, args.command)())
+        return run_async(getattr(cli, args.command)())
     except (ConfigError, IcefloeError) as exc:
         print(f"icefloe: {exc}", file=sys.stderr)
         return 2

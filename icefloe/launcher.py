@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .config import RobotConfig
+from .runtime import run_async
 
 STOP_TIMEOUT = 8.0
 MAX_BACKOFF = 30.0
@@ -144,4 +145,4 @@ def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> None:
     launcher = Launcher(config, config_path, services)
     if missing:
         launcher.say("up", f"not available yet, skipped: {', '.join(missing)}")
-    asyncio.run(launcher.run())
+    run_async(launcher.run())

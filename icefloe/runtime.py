@@ -40,7 +40,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Generic, TypeVar
 
@@ -56,6 +56,7 @@ from .schemas.keys import Topic
 from .schemas.messages import Log, Message
 
 T = TypeVar("T", bound=Message)
+T2 = TypeVar("T2")
 MSGPACK = zenoh.Encoding(codec.MSGPACK)
 JSON = zenoh.Encoding(codec.JSON)
 
@@ -421,6 +422,16 @@ def load_config(args: argparse.Namespace) -> RobotConfig:
     return cfg
 
 
+def run_async(coro: Coroutine[Any, Any, T2]) -> T2:
+    """``asyncio.run``, on uvloop where it is installed: it halves the hop from Zenoh's
+    threads into the loop (bench/runtime_latency.py measures it)."""
+    try:
+        import uvloop
+    except ImportError:
+        return asyncio.run(coro)
+    return uvloop.run(coro)
+
+
 def run(main: Callable[[RobotConfig], Awaitable[None]], argv: Sequence[str] | None = None,
         description: str | None = None) -> None:
     """Run a service's ``main(config)`` until it returns or SIGINT/SIGTERM arrives."""
@@ -442,4 +453,4 @@ def run(main: Callable[[RobotConfig], Awaitable[None]], argv: Sequence[str] | No
         with contextlib.suppress(asyncio.CancelledError):
             await main(cfg)
 
-    asyncio.run(supervised())
+    run_async(supervised())

@@ -122,6 +122,20 @@ class Robot:
                 proc.stop()
 
 
+def processes_naming(text: str) -> list[int]:
+    """PIDs of every process (but this one) whose command line contains ``text``, e.g. a config path."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != os.getpid():
+            try:
+                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
+            if text in cmd:
+                pids.append(int(entry.name))
+    return pids
+
+
 def _wait_port(port: int, proc: Proc, timeout: float = 15.0) -> None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, Robot
+from conftest import ROOT, Robot, processes_naming
 
 ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
 
@@ -87,20 +87,6 @@ def test_up_rejects_a_bad_config_and_starts_nothing(tmp_path: Path) -> None:
     assert "bad.toml: hwbridge.deadman_s: Expected `float`, got `str`" in res.stderr
 
 
-def _children_of(config_path: Path) -> list[int]:
-    """PIDs of every process whose command line names this config."""
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-            except OSError:
-                continue
-            if str(config_path) in cmd and int(entry.name) != os.getpid():
-                pids.append(int(entry.name))
-    return pids
-
-
 def test_up_runs_restarts_and_stops_everything(tmp_path: Path) -> None:
     from conftest import free_port
 
@@ -118,14 +104,14 @@ def test_up_runs_restarts_and_stops_everything(tmp_path: Path) -> None:
     try:
         wait_alive(robot, "info")
         wait_alive(robot, "router")
-        info_pid = next(p for p in _children_of(cfg) if "services.info" in Path(f"/proc/{p}/cmdline").read_text())
+        info_pid = next(p for p in processes_naming(str(cfg)) if p in processes_naming("icefloe.services.info"))
         os.kill(info_pid, signal.SIGKILL)  # a crash
         time.sleep(0.5)
         wait_alive(robot, "info")
         up.send_signal(signal.SIGINT)
         assert up.wait(20) == 0
         time.sleep(0.2)
-        assert _children_of(cfg) == []
+        assert processes_naming(str(cfg)) == []
         log = (tmp_path / "up.log").read_text()
         assert "not available yet, skipped: nosuch" in log
         assert "[info  ] exited with code -9; restarting in 1 s" in log

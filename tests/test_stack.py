@@ -1,0 +1,68 @@
+"""The whole simulated robot, as `./deploy/up.sh` runs it: every service a process, one Ctrl-C stops all."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from conftest import ROOT, free_port, processes_naming
+
+from icefloe import config as config_mod
+from icefloe.launcher import available
+
+ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
+
+
+def test_the_default_stack_runs_reports_and_stops_cleanly(tmp_path: Path) -> None:
+    port = free_port()
+    cfg = tmp_path / "stack.toml"
+    cfg.write_text(
+        f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "stack{port}"\nrun_dir = "{tmp_path}/run"\n'
+        f'[webapi]\nport = {free_port()}\n'
+        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
+    )
+    expected = [s for s in config_mod.load(cfg).services if available(s)]
+    log = open(tmp_path / "up.log", "w+")  # noqa: SIM115
+    echo = open(tmp_path / "echo.log", "w+")  # noqa: SIM115
+    up = subprocess.Popen([*ICEFLOE, "up", str(cfg), "--no-viz"], stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
+                          start_new_session=True)
+    tail = None
+    try:
+        deadline = time.monotonic() + 60
+        alive: list[str] = []
+        while time.monotonic() < deadline and not set(expected) <= set(alive):
+            time.sleep(1.0)
+            res = subprocess.run([*ICEFLOE, "status", "--config", str(cfg)], capture_output=True, text=True,
+                                 timeout=30)
+            alive = res.stdout.split(":", 1)[-1].split()
+        assert set(expected) <= set(alive), f"alive {alive}, expected {expected}\n{Path(log.name).read_text()}"
+        assert "router" in alive
+        tail = subprocess.Popen([*ICEFLOE, "echo", "log", "--duration", "4", "--config", str(cfg)], stdout=echo,
+                                cwd=ROOT)
+        time.sleep(1.0)
+        # Something worth a log line: a bad command, which hwbridge must reject and survive.
+        subprocess.run([*ICEFLOE, "pub", "cmd/twist", '{"v": 99.0, "w": 0}', "--config", str(cfg)], timeout=30)
+        tail.wait(timeout=30)
+        lines = [json.loads(line) for line in Path(echo.name).read_text().splitlines() if line.strip()]
+        assert lines, "no log lines on the bus"
+        assert all({"stamp", "level", "service", "text"} <= set(e) for e in lines)
+    finally:
+        up.send_signal(signal.SIGINT)
+        try:
+            code = up.wait(60)
+        except subprocess.TimeoutExpired:
+            os.killpg(up.pid, signal.SIGKILL)
+            raise
+        finally:
+            log.close()
+            echo.close()
+    assert code == 0
+    time.sleep(0.5)
+    left = processes_naming(str(cfg))
+    assert left == [], f"processes left behind: {left}\n{Path(log.name).read_text()}"
+    assert "all stopped" in Path(log.name).read_text()
