@@ -33,14 +33,25 @@ ACL_TEMPLATE = ROBOTS_DIR.parent / "zenoh" / "robot-acl.json5"
 def acl_rules(owners: Iterable[tuple[str, str]]) -> str:
     """The ``access_control`` JSON5 object for (robot, user) pairs: each robot writable by its user only."""
     template = ACL_TEMPLATE.read_text()
-    rules, subjects, policies = [], [], []
+    acls = []
     for robot, user in owners:
         text = template.replace("{robot}", robot).replace("{user}", user)
-        acl = json.loads(zenoh.Config.from_json5(text).get_json("access_control"))  # Zenoh reads its JSON5
-        rules += acl["rules"]
-        subjects += acl["subjects"]
-        policies += acl["policies"]
-    subjects = list({s["id"]: s for s in subjects}.values())  # "anyone" once
+        acls.append(json.loads(zenoh.Config.from_json5(text).get_json("access_control")))  # Zenoh reads its JSON5
+    rules = [rule for acl in acls for rule in acl["rules"]]
+    subjects = list({s["id"]: s for acl in acls for s in acl["subjects"]}.values())  # "anyone" once
+    # Zenoh lets a message through when any subject that matches its sender allows it, and a
+    # subject that no deny rule covers is allowed by default. So in a lab, robot A's owner would
+    # be allowed to drive robot B: each policy that applies to everyone (a subject without
+    # usernames) must name the owners of the other robots too.
+    owner_ids = [[s["id"] for s in acl["subjects"] if s.get("usernames")] for acl in acls]
+    everyone = {s["id"] for s in subjects if not s.get("usernames")}
+    policies = []
+    for i, acl in enumerate(acls):
+        others = [sid for j, ids in enumerate(owner_ids) if j != i for sid in ids]
+        for policy in acl["policies"]:
+            if everyone & set(policy["subjects"]):
+                policy = {**policy, "subjects": [*policy["subjects"], *others]}
+            policies.append(policy)
     return json.dumps({"enabled": True, "default_permission": "allow", "rules": rules,
                        "subjects": subjects, "policies": policies})
 

@@ -57,6 +57,11 @@ async def test_only_the_robots_own_credentials_command_it(make_robot, tmp_path: 
             assert not await reaches(guest, twist, keys.TWIST, m.Twist(v=0.2, w=0.0))
             with pytest.raises(NotReachable):  # nor call its queryables
                 await guest.query(keys.INFO, timeout=1.0)
+            token = guest.session.liveliness().declare_token(keys.alive_key(robot.name, "fake"))
+            await asyncio.sleep(0.3)  # nor pretend to be one of its services
+            assert keys.alive_key(robot.name, "fake") not in await service.alive()
+            assert keys.alive_key(robot.name, "hwbridge-stand-in") in await service.alive()
+            token.undeclare()
         with pytest.raises(NotReachable):  # another robot's credentials: not a user of this robot
             async with session(robot, other.user, other.password):
                 pass
