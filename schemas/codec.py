@@ -75,6 +75,8 @@ def decode(payload: bytes, encoding: str, type_: type[T], key: str = "payload") 
         raise BadPayload(f"{key}: {exc}") from None
     except msgspec.DecodeError as exc:
         raise BadPayload(f"{key}: not valid {kind}: {exc}") from None
+    except UnicodeDecodeError as exc:  # msgspec raises it for a string that is not UTF-8
+        raise BadPayload(f"{key}: a string is not valid UTF-8 ({exc.reason} at byte {exc.start})") from None
 
 
 def to_builtins(payload: bytes, encoding: str) -> object:

@@ -81,3 +81,11 @@ def test_messages_are_frozen_and_reject_nan_on_construction() -> None:
         t.v = 2.0  # type: ignore[misc]
     with pytest.raises(ValueError, match="`w` must be a finite"):
         m.Twist(v=0.0, w=math.nan)
+
+
+def test_a_string_that_is_not_utf8_is_a_bad_payload_not_a_crash() -> None:
+    payload = b"\x81\xa4text\xa2\xff\xfe"  # {"text": <2 bytes that are not UTF-8>}
+    with pytest.raises(BadPayload, match="icefloe/sim/oled/text: a string is not valid UTF-8"):
+        codec.decode(payload, codec.MSGPACK, m.OledText, "icefloe/sim/oled/text")
+    with pytest.raises(BadPayload, match="not valid UTF-8"):
+        codec.decode(b'{"text": "\xff"}', codec.JSON, m.OledText, "icefloe/sim/oled/text")

@@ -1,0 +1,136 @@
+"""The power service: battery monitor and shutdown manager.
+
+    python -m icefloe.services.power --config deploy/robots/sim.toml
+
+Reads ``hw/battery`` (raw, from hwbridge), publishes ``power/battery`` (filtered,
+with a state), watches the shutdown button and the board's request line, answers
+``power/request``, and runs the shutdown sequence (`shutdown.Shutdown`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+
+from icefloe.config import Power, RobotConfig
+from icefloe.runtime import Node, Subscription, run
+
+from .battery import BadReading, BatteryMonitor
+from .gpio import Lines, open_lines
+from .lines import HoldDetector
+from .shutdown import Shutdown
+
+
+async def watch_battery(node: Node, power: Power, readings: Subscription[m.BatteryReading],
+                        shutdown: Shutdown) -> None:
+    """hw/battery -> power/battery; shut down once critical has persisted, or on silence while low."""
+    if power.source == "i2c":
+        node.log.error("power.source = \"i2c\": no I2C battery monitor driver in this build; "
+                       "battery not monitored (use \"board\")")
+        return
+    # "board" and "sim" read the same key: the simulator's battery reaches us through
+    # its board model and hwbridge, exactly like the real one.
+    monitor = BatteryMonitor(power.low_v, power.critical_v, power.critical_readings, power.pole)
+    async with asyncio.TaskGroup() as tasks:
+        tasks.create_task(_readings(node, monitor, readings, shutdown))
+        tasks.create_task(_silence(monitor, power.silent_s, shutdown))
+
+
+async def _silence(monitor: BatteryMonitor, silent_s: float, shutdown: Shutdown) -> None:
+    """Shut down when the readings stop while the battery is low (the board gave up)."""
+    while True:
+        await asyncio.sleep(min(silent_s / 4, 0.5))
+        if monitor.silent_while_low(time.monotonic(), silent_s):
+            shutdown.start("battery readings stopped while low")
+
+
+async def _readings(node: Node, monitor: BatteryMonitor,
+                    readings: Subscription[m.BatteryReading], shutdown: Shutdown) -> None:
+    battery = node.publisher(keys.BATTERY)
+    previous = "ok"
+    async for reading in readings:
+        try:
+            state = monitor.update(reading.voltage, reading.current, time.monotonic())
+        except BadReading as exc:
+            node.log.warning("hw/battery: %s; reading ignored", exc)
+            continue
+        assert monitor.voltage is not None
+        battery.put(m.Battery(stamp=reading.stamp, voltage=round(monitor.voltage, 4),
+                              current=round(monitor.current, 4), state=state))
+        if state != previous:
+            report = node.log.info if state == "ok" else node.log.warning
+            report("battery %s: %.2f V", state, monitor.voltage)
+            previous = state
+        if monitor.shutdown_due:
+            shutdown.start("critical battery")
+
+
+async def watch_lines(lines: Lines, power: Power, shutdown: Shutdown) -> None:
+    """Shutdown button (held button_hold_s) and board request line (held request_hold_s)."""
+    detectors = {
+        power.button_line: (HoldDetector(power.button_hold_s, power.debounce_s), "shutdown button"),
+        power.request_line: (HoldDetector(power.request_hold_s, power.debounce_s), "board request"),
+    }
+
+    async def feed() -> None:
+        async for line, level, t in lines.edges():
+            detectors[line][0].edge(level, t)
+
+    async def poll() -> None:
+        # Polling every half debounce period is cheap and bounds the reaction delay.
+        while True:
+            await asyncio.sleep(power.debounce_s / 2)
+            now = lines.clock()
+            for detector, reason in detectors.values():
+                if detector.poll(now):
+                    shutdown.start(reason)
+
+    async def refresh() -> None:
+        while True:
+            await asyncio.sleep(1.0)
+            lines.refresh()
+
+    async with asyncio.TaskGroup() as tasks:
+        tasks.create_task(feed())
+        tasks.create_task(poll())
+        tasks.create_task(refresh())
+
+
+def check(config: RobotConfig) -> None:
+    """Refuse to start on power settings that cannot work (one line naming the key)."""
+    p = config.power
+    try:
+        BatteryMonitor(p.low_v, p.critical_v, p.critical_readings, p.pole)
+    except ValueError as exc:
+        raise SystemExit(f"icefloe: {config.source}: {exc}") from None
+    for name in ("debounce_s", "button_hold_s", "request_hold_s", "halt_timeout_s", "silent_s"):
+        if not getattr(p, name) > 0:
+            raise SystemExit(f"icefloe: {config.source}: power.{name} must be > 0 s")
+    if not p.poweroff_command:
+        raise SystemExit(f"icefloe: {config.source}: power.poweroff_command is empty")
+
+
+async def main(config: RobotConfig) -> None:
+    check(config)
+    async with Node("power", config) as node:
+        # fifo: persistence counts consecutive readings, so none may be skipped.
+        readings = node.subscribe(keys.HW_BATTERY, latest=False)
+        lines = open_lines(node, config.power)
+        try:
+            shutdown = Shutdown(node, config.power, lines)
+            node.queryable(keys.SHUTDOWN_REQUEST, shutdown.request)
+            # Listen first, then raise the acknowledge line ("daemon alive"): whoever
+            # sees it high can count on us hearing them.
+            lines.drive(config.power.ack_line, 1)
+            async with asyncio.TaskGroup() as tasks:
+                tasks.create_task(watch_battery(node, config.power, readings, shutdown))
+                tasks.create_task(watch_lines(lines, config.power, shutdown))
+        finally:
+            lines.close()
+
+
+if __name__ == "__main__":
+    run(main)

@@ -1,0 +1,140 @@
+"""oled rendering: font, frame packing, the user terminal, and golden images of every screen.
+
+Golden images live in ``tests/golden/oled/<name>.pbm`` (binary PBM, lit pixels
+white). After an intended change of a screen, regenerate them with
+
+    ICEFLOE_REGEN_GOLDEN=1 .venv/bin/pytest tests/test_oled_render.py
+
+look at the new files, and commit them; a regenerating run skips the comparisons.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from icefloe.schemas import messages as m
+from icefloe.services.oled import font
+from icefloe.services.oled.frame import COLS, HEIGHT, ROWS, WIDTH, Frame
+from icefloe.services.oled.screens import ERRORS, SCREENS, USER, Status, render
+from icefloe.services.oled.terminal import BOX, Terminal
+
+GOLDEN = Path(__file__).parent / "golden" / "oled"
+REGEN = os.environ.get("ICEFLOE_REGEN_GOLDEN") == "1"
+
+
+def fixed_status() -> Status:
+    """The same inputs every time (nothing from this machine: no real addresses or host name)."""
+    terminal = Terminal()
+    terminal.write("USER TEXT\nhello, robot!\n" + "wraps at twenty-one chars")
+    return Status(
+        addresses=[("eth0", "192.168.1.20"), ("wlan0", "10.42.0.1")],
+        hostname="penguin1",
+        terminal=terminal,
+        battery=m.Battery(stamp=1, voltage=7.62, current=0.412, state="ok"),
+        wheels=m.Wheels(stamp=1, ticks_left=12345, ticks_right=-678, speed_left=0.125,
+                        speed_right=-0.05, target_left=0.15, target_right=-0.05),
+        tick_zero=(345, 0),
+        loop=m.LoopStats(stamp=1, rate=999.8, period_mean=0.001, period_max=0.0013,
+                         latency_p50=12e-6, latency_p99=45e-6, latency_p999=80e-6,
+                         latency_max=123e-6, overruns=3, cycles=123456, board="penguinpi"),
+        alive=["hwbridge", "odometry", "oled", "power", "router", "sim"],
+        error=m.Log(stamp=1, level="error", service="hwbridge",
+                    text="/dev/serial0: no reply from the board for 0.5 s"),
+        errors=2,
+        pose=m.Pose(stamp=1, x=1.2345, y=-0.5, theta=math.radians(45)),
+    )
+
+
+CASES: dict[str, tuple[int, Status]] = {
+    **{screen.name: (i, fixed_status()) for i, screen in enumerate(SCREENS)},
+    "battery-low": (2, Status(battery=m.Battery(stamp=1, voltage=6.83, current=0.3, state="low"))),
+    "battery-none": (2, Status()),
+    "errors-none": (7, Status()),
+    "network-none": (0, Status(hostname="sim")),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_screen_matches_golden_image(name: str) -> None:
+    index, status = CASES[name]
+    frame = render(index, status)
+    path = GOLDEN / f"{name}.pbm"
+    if REGEN:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        frame.save_pbm(path)
+        pytest.skip(f"regenerated {path}")
+    assert path.exists(), f"{path} missing: run with ICEFLOE_REGEN_GOLDEN=1 to create it"
+    expected = Frame.from_pbm(path.read_bytes())
+    assert frame == expected, f"{name} differs from {path}; got:\n{frame.ascii()}"
+
+
+@pytest.mark.parametrize("state", ["low", "critical"])
+def test_low_battery_inverts_every_screen(state: str) -> None:
+    status = fixed_status()
+    normal = [render(i, status) for i in range(len(SCREENS))]
+    status.battery = m.Battery(stamp=1, voltage=7.62, current=0.412, state=state)  # type: ignore[arg-type]
+    for i, screen in enumerate(SCREENS):
+        if screen.name != "battery":  # the battery screen also spells the state out
+            assert np.array_equal(render(i, status).pixels, 1 - normal[i].pixels), screen.name
+
+
+def test_every_screen_renders_with_no_data_at_all() -> None:
+    for index in range(len(SCREENS)):
+        assert render(index, Status()).pixels.shape == (HEIGHT, WIDTH)
+
+
+def test_screen_geometry() -> None:
+    assert (COLS, ROWS) == (21, 4)
+    assert (SCREENS[USER].name, SCREENS[ERRORS].name) == ("user", "errors")
+    assert {chr(c) for c in range(0x20, 0x7F)} == font.CHARSET
+
+
+def test_glyphs_are_distinct_and_leave_the_spacing_column_dark() -> None:
+    cells = {ch: font.cell(ch) for ch in font.CHARSET}
+    seen = {cell.tobytes() for cell in cells.values()}
+    assert len(seen) == len(cells)  # no two characters look the same
+    assert all(not cell[:, 5].any() for cell in cells.values())
+    assert font.UNKNOWN_CELL.tobytes() not in seen
+
+
+def test_pack_is_row_major_msb_first() -> None:
+    frame = Frame()
+    frame.pixels[0, 0] = frame.pixels[0, 9] = frame.pixels[1, 0] = frame.pixels[31, 127] = 1
+    packed = frame.pack()
+    assert len(packed) == 512
+    assert packed[0] == 0x80 and packed[1] == 0x40 and packed[16] == 0x80 and packed[511] == 0x01
+    assert Frame.unpack(packed) == frame
+    assert Frame.from_pbm(frame.to_pbm()) == frame
+
+
+def test_text_is_cut_at_the_right_edge() -> None:
+    frame = Frame()
+    frame.text(0, 20, "AB")  # only "A" fits in column 20
+    assert np.array_equal(frame.pixels[0:8, 120:126], font.cell("A"))
+    assert not frame.pixels[:, 126:].any()
+
+
+def test_terminal_newline_wrap_scroll_and_clear() -> None:
+    t = Terminal()
+    t.write("one\ntwo\n" + "x" * 25)
+    assert t.lines == ["one", "two", "x" * 21, "xxxx"]
+    t.write("\nfive")
+    assert t.lines == ["two", "x" * 21, "xxxx", "five"]  # scrolled up
+    t.write("\fnew")
+    assert t.lines == ["new", "", "", ""]
+    t.write("\r\tab")
+    assert t.lines[0] == "    ab"
+
+
+def test_terminal_shows_unprintable_characters_safely() -> None:
+    t = Terminal()
+    t.write("a\x07b\x1b[2Jc é 😀")
+    assert t.lines[0] == f"a{BOX}b{BOX}[2Jc e {BOX}"
+    assert t.replaced == 3
+    frame = Frame()
+    frame.text(0, 1, t.lines[0][1])
+    assert np.array_equal(frame.pixels[0:8, 6:12], font.UNKNOWN_CELL)
