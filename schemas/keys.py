@@ -1,0 +1,112 @@
+"""The key table: which key expression carries which message.
+
+Every key is ``icefloe/<robot>/<name>``, where ``<robot>`` is the robot config's
+``name`` ("sim" for the simulated robot) and ``<name>`` is from the table below.
+
+    >>> key("penguin1", TWIST)
+    'icefloe/penguin1/cmd/twist'
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from . import messages as m
+
+PREFIX = "icefloe"
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One row of the key table."""
+
+    name: str
+    """Key under the robot, e.g. "cmd/twist"."""
+    type: type[m.Message]
+    """The message the key carries (for a queryable: what the query sends)."""
+    kind: Literal["in", "out", "query"]
+    """in: commands to the robot; out: state from the robot; query: a queryable."""
+    reply: type[m.Message] | None = None
+    """For a queryable: the message of its answer."""
+
+
+TWIST = Topic("cmd/twist", m.Twist, "in")
+WHEELS_CMD = Topic("cmd/wheels", m.WheelSpeeds, "in")
+STOP = Topic("cmd/stop", m.Stop, "in")
+MOTION = Topic("cmd/motion", m.Motion, "query", reply=m.MotionDone)
+LEDS = Topic("io/leds", m.Led, "in")
+LEDARRAY = Topic("io/ledarray", m.LedArray, "in")
+OLED_TEXT = Topic("oled/text", m.OledText, "in")
+OLED_SCREEN = Topic("oled/screen", m.OledScreen, "in")
+BOARD_TEXT = Topic("io/text", m.OledText, "in")
+"""Raw user text for the board's own display (PenguinPi firmware user screen), via hwbridge."""
+BOARD_SCREEN = Topic("io/screen", m.OledScreen, "in")
+"""Select the board's own display screen (PenguinPi HAT_SET_SCREEN), via hwbridge."""
+HALT = Topic("cmd/halt", m.Stop, "query", reply=m.Wheels)
+"""Stop the wheels and answer once they have stopped (the power service uses it before power-off)."""
+
+WHEELS = Topic("hw/wheels", m.Wheels, "out")
+LOOP = Topic("hw/loop", m.LoopStats, "out")
+HW_BATTERY = Topic("hw/battery", m.BatteryReading, "out")
+BUTTONS = Topic("io/buttons", m.Buttons, "out")
+DIP = Topic("io/dip", m.Dip, "out")
+ODOM_POSE = Topic("odom/pose", m.Pose, "out")
+LOC_POSE = Topic("loc/pose", m.PoseEstimate, "out")
+IMAGE = Topic("camera/image", m.Image, "out")
+LANDMARKS = Topic("camera/landmarks", m.Landmarks, "out")
+BATTERY = Topic("power/battery", m.Battery, "out")
+SHUTDOWN = Topic("power/shutdown", m.ShutdownNotice, "out")
+OLED_FRAME = Topic("oled/frame", m.OledFrame, "out")
+LOG = Topic("log", m.Log, "out")
+TRUTH = Topic("sim/truth", m.Truth, "out")
+SIM_GPIO = Topic("sim/gpio", m.GpioLevel, "out")
+"""Simulated GPIO line levels; each line's driver publishes it (see `GpioLevel`)."""
+SIM_CONTROL = Topic("sim/control", m.SimControl, "query", reply=m.SimState)
+"""The simulator's test handles (see `SimControl`)."""
+
+ODOM_RESET = Topic("odom/reset", m.PoseReset, "query", reply=m.Pose)
+SNAPSHOT = Topic("camera/snapshot", m.Stop, "query", reply=m.Image)
+INFO = Topic("info", m.Stop, "query", reply=m.RobotInfo)
+SHUTDOWN_REQUEST = Topic("power/request", m.ShutdownRequest, "query", reply=m.ShutdownNotice)
+
+TABLE: dict[str, Topic] = {
+    t.name: t
+    for t in (
+        TWIST, WHEELS_CMD, STOP, MOTION, HALT, LEDS, LEDARRAY, OLED_TEXT, OLED_SCREEN, BOARD_TEXT,
+        BOARD_SCREEN,
+        WHEELS, LOOP, HW_BATTERY, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
+        BATTERY, SHUTDOWN, OLED_FRAME, LOG, TRUTH, SIM_GPIO,
+        ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL,
+    )
+}  # fmt: skip
+
+
+def key(robot: str, topic: Topic | str) -> str:
+    """The full key expression of a topic on a robot."""
+    name = topic.name if isinstance(topic, Topic) else topic
+    return f"{PREFIX}/{robot}/{name}"
+
+
+def alive_key(robot: str, service: str) -> str:
+    """The liveliness token a running service holds: ``icefloe/<robot>/alive/<service>``."""
+    return f"{PREFIX}/{robot}/alive/{service}"
+
+
+def split(key_expr: str) -> tuple[str, str]:
+    """``"icefloe/sim/cmd/twist"`` -> ``("sim", "cmd/twist")``.
+
+    Raises ValueError for a key outside the icefloe namespace.
+    """
+    parts = str(key_expr).split("/", 2)
+    if len(parts) != 3 or parts[0] != PREFIX or not parts[1] or not parts[2]:
+        raise ValueError(f"{key_expr!r} is not an icefloe key (icefloe/<robot>/<name>)")
+    return parts[1], parts[2]
+
+
+def topic_of(key_expr: str) -> Topic | None:
+    """The table row for a full key expression, or None if the key is not in the table."""
+    try:
+        return TABLE.get(split(key_expr)[1])
+    except ValueError:
+        return None

@@ -1,0 +1,453 @@
+"""Every message on the icefloe bus, as msgspec Structs.
+
+This file is the contract. A student writing a service in another language reads
+it (or the JSON Schemas generated from it in ``schemas/json/``) and nothing else.
+
+Conventions, the same for every message:
+
+* Payloads are MessagePack **maps** keyed by the field names below, Zenoh
+  encoding ``application/msgpack``. Inputs (``cmd/...``, ``io/leds``, ``oled/text``
+  and the queryables) also accept ``application/json`` with the same fields.
+* SI units everywhere: m, s, rad, m/s, rad/s, V, A.
+* ``stamp`` is integer nanoseconds since the Unix epoch (``time.time_ns()``).
+* ``theta`` and bearings are counter-clockwise positive, wrapped to (-pi, pi].
+* Unknown fields are rejected, and so are non-finite floats (NaN, inf): a bad
+  message is dropped with one log line naming the key and the field.
+
+Which key carries which message is in ``keys.py``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import msgspec
+
+
+class Message(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Base of every bus message: immutable, keyword-only, no unknown fields, finite floats."""
+
+    def __post_init__(self) -> None:
+        # msgspec accepts NaN and inf for `float`; on a robot they are always a bug.
+        for name in self.__struct_fields__:
+            value = getattr(self, name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"field `{name}` must be a finite number, got {value}")
+
+
+# --------------------------------------------------------------------------- commands (in)
+
+
+class Twist(Message):
+    """``cmd/twist``: drive the robot's body. hwbridge clamps to the configured limits."""
+
+    v: float
+    """Forward speed, m/s (positive forward)."""
+    w: float
+    """Turn rate, rad/s (counter-clockwise positive)."""
+
+
+class WheelSpeeds(Message):
+    """``cmd/wheels``: drive each wheel directly, rim speeds in m/s (positive forward)."""
+
+    left: float
+    right: float
+
+
+class Stop(Message):
+    """``cmd/stop``: stop now. An empty map (or an empty payload).
+
+    The stop latches: the wheels stay stopped until the next twist, wheels or
+    motion command.
+    """
+
+
+class Motion(Message):
+    """``cmd/motion`` query: run the wheels at fixed speeds for a time, then stop.
+
+    Like the PenguinPi web API's ``/robot/set/velocity?value=L,R&time=T&accel=A``:
+    speeds ramp up over ``accel`` seconds, hold, ramp down over ``accel`` seconds.
+    The query is answered with a `MotionDone` when the motion has ended.
+    """
+
+    left: float
+    """Left wheel rim speed, m/s."""
+    right: float
+    """Right wheel rim speed, m/s."""
+    duration: float
+    """Time at full speed plus one ramp, s (> 0, and > 2 * accel)."""
+    accel: float = 0.0
+    """Length of each ramp, s (0 = step)."""
+
+
+class MotionDone(Message):
+    """Answer to ``cmd/motion``: how the motion ended."""
+
+    stamp: int
+    completed: bool
+    """False when a stop command, the deadman or another motion cut it short."""
+    reason: str = ""
+
+
+class Led(Message):
+    """``io/leds``: set or pulse one LED on the board.
+
+    PenguinPi LED numbers: 1 red, 2..4 the yellow LEDs 2..4 (LED 4 is also the
+    shutdown daemon's "alive" lamp on the real board).
+    """
+
+    led: int
+    on: bool = True
+    pulse: float = 0.0
+    """If > 0: light for this many seconds (<= 0.255 on the PenguinPi), then off."""
+
+
+class LedArray(Message):
+    """``io/ledarray``: the 16-LED array of the PenguinPi HAT, bit n = LED n (bit 0 bottom right)."""
+
+    mask: int
+
+
+class OledText(Message):
+    """``oled/text``: text for the user screen, a tiny terminal.
+
+    ``\\n`` starts a new line, ``\\f`` clears the screen, long lines wrap.
+    """
+
+    text: str
+
+
+class OledScreen(Message):
+    """``oled/screen``: select the screen shown (index into the screen list of the oled service)."""
+
+    index: int
+
+
+class PoseReset(Message):
+    """``odom/reset`` query payload (optional): the pose to reset to. Empty = origin."""
+
+    x: float = 0.0
+    y: float = 0.0
+    theta: float = 0.0
+
+
+class ShutdownRequest(Message):
+    """``power/request`` query: ask the robot to power off (authorised users only)."""
+
+    reason: str = "requested on the bus"
+
+
+# --------------------------------------------------------------------------- hardware (out)
+
+
+class Wheels(Message):
+    """``hw/wheels``: encoder state, published by hwbridge (100 Hz by default)."""
+
+    stamp: int
+    """Time of the encoder sample, ns since the epoch."""
+    ticks_left: int
+    """Left encoder count, unwrapped (never wraps; 384 counts per wheel turn on the PenguinPi)."""
+    ticks_right: int
+    speed_left: float
+    """Measured left rim speed, m/s."""
+    speed_right: float
+    target_left: float = 0.0
+    """Commanded left rim speed, m/s (after clamping, ramps and the deadman)."""
+    target_right: float = 0.0
+
+
+class LoopStats(Message):
+    """``hw/loop``: timing of hwbridge's real-time cycle over the last reporting interval (1 Hz)."""
+
+    stamp: int
+    rate: float
+    """Cycles per second achieved, Hz."""
+    period_mean: float
+    """Mean period between cycle starts, s."""
+    period_max: float
+    latency_p50: float
+    """Wake-up latency (actual start minus deadline), s: median."""
+    latency_p99: float
+    latency_p999: float
+    latency_max: float
+    overruns: int
+    """Cycles that missed their deadline, since start."""
+    cycles: int
+    """Cycles run since start."""
+    board: str = ""
+    """Which board backend, e.g. "penguinpi" or "icoboard-v2"."""
+    link_errors: int = 0
+    """Corrupt, lost or unmatched frames on the board link, since start."""
+    link_rate: float = 0.0
+    """Wheel exchanges with the board completed per second, Hz (PenguinPi: MULTI_SET_VEL_GET_ENC
+    replies, limited by 115200 baud; icoBoard: SPI frames, one per cycle)."""
+    crc_errors: int = 0
+    """Frames with a bad CRC, since start."""
+    timeouts: int = 0
+    """Requests the board did not answer in time, since start."""
+    unmatched: int = 0
+    """Good frames that answered no open request (late or duplicated replies), since start."""
+    garbage_bytes: int = 0
+    """Bytes that were neither a frame nor board text, since start."""
+    board_errors: int = 0
+    """Errors the board reported itself (PenguinPi ``ERR:`` lines, icoBoard REJECTED), since start."""
+
+
+class BatteryReading(Message):
+    """``hw/battery``: raw battery reading from the board (the power service filters it)."""
+
+    stamp: int
+    voltage: float
+    """V."""
+    current: float
+    """A."""
+
+
+class Buttons(Message):
+    """``io/buttons``: a button was pressed. Sent once per press."""
+
+    stamp: int
+    button: int
+    """0..3 for the PenguinPi HAT's S1..S4; 10 for the shutdown button."""
+    presses: int = 1
+
+
+class Dip(Message):
+    """``io/dip``: the DIP switch, published at start and when it changes."""
+
+    stamp: int
+    value: int
+    """0..15: SW1 = 8, SW2 = 4, SW3 = 2, SW4 = 1."""
+
+
+# --------------------------------------------------------------------------- estimates (out)
+
+
+class Pose(Message):
+    """``odom/pose``: dead-reckoned pose of the robot in the odometry frame."""
+
+    stamp: int
+    x: float
+    """m."""
+    y: float
+    """m."""
+    theta: float
+    """rad, counter-clockwise positive, in (-pi, pi]."""
+    v: float = 0.0
+    """Forward speed, m/s."""
+    w: float = 0.0
+    """Turn rate, rad/s."""
+
+
+class PoseEstimate(Message):
+    """``loc/pose``: the localizer's pose in the map frame, with its uncertainty."""
+
+    stamp: int
+    x: float
+    y: float
+    theta: float
+    covariance: list[float]
+    """3x3 covariance of (x, y, theta), row-major, 9 numbers (m^2, m*rad, rad^2)."""
+
+
+class Truth(Message):
+    """``sim/truth``: the simulated robot's true pose (simulator only)."""
+
+    stamp: int
+    x: float
+    y: float
+    theta: float
+
+
+# --------------------------------------------------------------------------- camera (out)
+
+
+class Image(Message):
+    """``camera/image`` and the ``camera/snapshot`` query answer: one compressed frame."""
+
+    stamp: int
+    width: int
+    height: int
+    data: bytes
+    """The compressed image."""
+    format: Literal["jpeg"] = "jpeg"
+
+
+class Landmark(Message):
+    """One detected ArUco marker, as seen from the robot."""
+
+    id: int
+    range: float
+    """Distance from the robot's centre to the marker's centre, m."""
+    bearing: float
+    """Direction of the marker from the robot's heading, rad, counter-clockwise positive."""
+    corners: list[float] = []
+    """The four corners in pixels, x0, y0, x1, y1, ... (OpenCV order)."""
+    position: list[float] = []
+    """Marker centre in the camera frame (x right, y down, z forward), m."""
+    rotation: list[float] = []
+    """Marker orientation in the camera frame, Rodrigues vector, rad."""
+
+
+class Landmarks(Message):
+    """``camera/landmarks``: the markers detected in one frame."""
+
+    stamp: int
+    """Capture time of the frame."""
+    landmarks: list[Landmark]
+
+
+# --------------------------------------------------------------------------- power and screen
+
+
+class Battery(Message):
+    """``power/battery``: filtered battery state."""
+
+    stamp: int
+    voltage: float
+    """V."""
+    current: float
+    """A."""
+    state: Literal["ok", "low", "critical"]
+
+
+class ShutdownNotice(Message):
+    """``power/shutdown``: the robot is shutting down, and why."""
+
+    stamp: int
+    reason: str
+    """e.g. "critical battery", "shutdown button", "board request", "requested on the bus"."""
+
+
+class GpioLevel(Message):
+    """``sim/gpio``: the level of one simulated Raspberry Pi GPIO line (simulator only).
+
+    Whoever drives a line publishes it: the simulator drives the shutdown button
+    (GPIO22) and the board's request line (GPIO10); the power service drives the
+    acknowledge line (GPIO11). The lines are active low, so ``level = 0`` means
+    "pressed" / "requested" / "Pi is shutting down".
+    """
+
+    stamp: int
+    """Time of the change, ns since the epoch."""
+    line: int
+    """BCM line number."""
+    level: int
+    """0 (low) or 1 (high)."""
+
+
+class SimControl(Message):
+    """``sim/control`` query: act on the simulated robot (simulator only); answered with `SimState`.
+
+    ``action`` says what to do; each action reads only the fields named with it:
+
+    * ``read``: nothing, just answer the state.
+    * ``set_battery``: ``volts`` (open-circuit voltage of the pack).
+    * ``press_button``: ``button`` held for ``seconds``, then released.
+    * ``hold_button`` / ``release_button``: ``button`` down until released.
+    * ``set_dip``: ``dip`` 0..15 (PenguinPi).
+    * ``stall``: ``wheel`` blocked (``on``) or free again.
+    * ``inject_noise``: icoBoard: flip a bit in each of the next ``count`` frames;
+      PenguinPi: flip a bit in each byte with ``probability`` (0 = off). In ``direction``.
+    * ``drop_bytes``: lose the next ``count`` bytes on the serial line in ``direction`` (PenguinPi).
+    * ``set_gpio``: drive ``line`` (22 button, 10 board request, 11 acknowledge) to ``level``.
+    * ``force_descriptor``: an icoBoard v2 START reply says ``sensors``/``actuators``
+      instead of the truth (-1 = the truth again).
+    """
+
+    action: Literal["read", "set_battery", "press_button", "hold_button", "release_button",
+                    "set_dip", "stall", "inject_noise", "drop_bytes", "set_gpio",
+                    "force_descriptor"] = "read"
+    volts: float = 0.0
+    """V."""
+    button: int = 10
+    """10 = the SDN shutdown button (GPIO22); 0..3 = the PenguinPi HAT's S1..S4."""
+    seconds: float = 0.1
+    """How long ``press_button`` holds the button, s."""
+    dip: int = 0
+    wheel: Literal["left", "right"] = "left"
+    on: bool = True
+    count: int = 1
+    probability: float = 0.0
+    direction: Literal["rx", "tx"] = "rx"
+    """"rx": host to board (requests), "tx": board to host (replies)."""
+    line: int = 22
+    level: int = 0
+    sensors: int = -1
+    actuators: int = -1
+
+
+class SimState(Message):
+    """Answer to ``sim/control``: the simulated robot's true state after the action."""
+
+    stamp: int
+    sim_time: float
+    """Simulated time since the simulator started, s."""
+    seed: int
+    """The world's random seed (rerun with it to repeat a run)."""
+    board: str
+    """"penguinpi", "icoboard-v1" or "icoboard-v2"."""
+    x: float
+    y: float
+    theta: float
+    duty_left: float
+    """PWM duty applied to the left motor, fraction in [-1, 1]."""
+    duty_right: float
+    speed_left: float
+    """True left rim speed, m/s."""
+    speed_right: float
+    battery_voltage: float
+    """V, under the present load."""
+    battery_current: float
+    """A."""
+    last_frame: bytes = b""
+    """The last frame the board received, as it arrived."""
+    bad_frames: int = 0
+    """Frames the board rejected (bad length, CRC or opcode) since start."""
+    watchdog_trips: int = 0
+    """icoBoard v2: times the board watchdog stopped the wheels."""
+    gpio_button: int = 1
+    """GPIO22 level (0 = shutdown button pressed)."""
+    gpio_request: int = 1
+    """GPIO10 level (0 = the board asks the Pi to shut down)."""
+    gpio_ack: int = 0
+    """GPIO11 level (1 = the Pi's shutdown daemon is alive)."""
+
+
+class OledFrame(Message):
+    """``oled/frame``: the picture on the little screen."""
+
+    width: int
+    height: int
+    pixels: bytes
+    """1 bit per pixel, row-major, most significant bit first; width * height / 8 bytes."""
+
+
+# --------------------------------------------------------------------------- housekeeping
+
+
+class Log(Message):
+    """``log``: a log line from a service."""
+
+    stamp: int
+    level: Literal["debug", "info", "warning", "error", "critical"]
+    service: str
+    text: str
+
+
+class RobotInfo(Message):
+    """``info`` query answer: what this robot is."""
+
+    name: str
+    board: str
+    """"penguinpi" or "icoboard"."""
+    backend: str
+    """"hardware" or "sim"."""
+    wheel_diameter: float
+    """m."""
+    track: float
+    """Distance between the wheel contact points, m."""
+    ticks_per_rev: int
+    max_wheel_speed: float
+    """m/s."""

@@ -1,0 +1,242 @@
+"""The simulated robot's body: two DC gearmotors on a differential-drive base, and a battery.
+
+Everything a board model needs from "the physical world" is here; the board
+models (``penguinpi.py``, ``icoboard.py``) only apply PWM duty and read encoder
+counts, exactly as the real boards do.
+
+Motor model (from the PenguinPi report, seed 001 §3.2.2, open-loop test of motor A):
+the steady encoder rate is proportional to the applied PWM percentage with a
+slope of **11.5 counts/s per % PWM**, and the wheel does **not move at 9 % or
+less** (static friction: the dead band). The report measured at the pack's
+normal voltage; we take that as `NOMINAL_VOLTAGE` and scale the speed with the
+battery voltage (a DC motor's speed follows its applied voltage). The speed
+approaches its steady value with a first-order lag of `MOTOR_TAU` seconds. The
+report gives no time constant; we estimate it from its motor data (report
+§3.2.1): stall torque 78.4 mN·m and no-load speed 140 RPM (14.7 rad/s) give a
+torque-speed slope b = 0.0784 / 14.7 = 5.3 mN·m·s; half of a ~1 kg robot on a
+32.5 mm wheel radius is J = 0.5 · 0.0325² = 5.3e-4 kg·m²; J / b = 0.1 s.
+
+Motor current (report §3.2.1: no-load 190 mA, maximum load 250 mA at full
+voltage) is interpolated between those two with the wheel's lag behind its
+steady speed, and scaled with the duty: a stalled wheel at full duty draws
+250 mA, a free-running one 190 mA.
+
+Battery: a 2S lithium pack, 8.2 V full, open-circuit voltage falling linearly
+with the charge drawn (`CAPACITY_AH`), minus an internal-resistance drop. The
+Raspberry Pi and the board draw `BASE_CURRENT` all the time.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import sys
+import threading
+
+from icefloe.config import Geometry
+
+SLOPE_COUNTS_PER_PCT = 11.5
+"""Steady encoder rate per percent of PWM duty, counts/s per % (report Fig. 4)."""
+DEAD_BAND_PCT = 9.0
+"""No motion at this PWM percentage or less (report §3.2.2)."""
+NOMINAL_VOLTAGE = 7.4
+"""Battery voltage at which the slope above holds, V (2S lithium nominal)."""
+MOTOR_TAU = 0.1
+"""First-order speed lag of wheel + gearmotor under half the robot's mass, s (module docstring)."""
+NO_LOAD_CURRENT = 0.19
+"""Motor current running free at full voltage, A (ROB-13302 data, report §3.2.1)."""
+MAX_LOAD_CURRENT = 0.25
+"""Motor current at maximum load (stalled) at full voltage, A."""
+BASE_CURRENT = 0.45
+"""Raspberry Pi 3B + PenguinPi board + camera, A (assumed)."""
+FULL_VOLTAGE = 8.2
+"""Open-circuit voltage of a full pack, V."""
+EMPTY_VOLTAGE = 6.0
+"""Open-circuit voltage when `CAPACITY_AH` has been drawn, V."""
+CAPACITY_AH = 2.2
+"""Charge between full and empty, A·h."""
+INTERNAL_RESISTANCE = 0.1
+"""Pack + wiring resistance, ohm."""
+
+WHEELS = ("left", "right")
+
+
+def wrap_angle(theta: float) -> float:
+    """Wrap an angle to (-pi, pi], rad."""
+    wrapped = math.remainder(theta, math.tau)
+    return math.pi if wrapped == -math.pi else wrapped
+
+
+class World:
+    """A differential-drive robot on a flat floor, stepped by the simulator's clock.
+
+    Thread-safe: the clock thread calls `step`, board models call `set_duty` and
+    `counts`, tests call the handles; one lock guards the state.
+    """
+
+    def __init__(self, geometry: Geometry, *, seed: int = 0, slip: float = 0.0,
+                 encoder_noise: float = 0.0) -> None:
+        """``slip``: relative std dev of ground travel vs rim travel per step (0 = none).
+        ``encoder_noise``: relative std dev of counted vs turned wheel angle per step.
+        ``seed``: random seed for both; 0 picks one and prints it so a run can be repeated.
+        """
+        if slip < 0 or encoder_noise < 0 or not math.isfinite(slip + encoder_noise):
+            raise ValueError("slip and encoder_noise must be finite and >= 0")
+        if seed == 0:
+            seed = random.SystemRandom().randrange(1, 2**31)
+            print(f"sim world: seed {seed}", file=sys.stderr)
+        self.seed = seed
+        self._rng = random.Random(seed)
+        self.geometry = geometry
+        self.slip = slip
+        self.encoder_noise = encoder_noise
+        self._lock = threading.Lock()
+        # m of rim travel per encoder count
+        self._m_per_count = math.pi * geometry.wheel_diameter / geometry.ticks_per_rev
+        self._duty = [0.0, 0.0]
+        self._speed = [0.0, 0.0]             # rim speed, m/s
+        self._counts = [0.0, 0.0]            # fractional encoder position, counts
+        self._stalled = [False, False]
+        self._pose = (0.0, 0.0, 0.0)
+        self._ocv = FULL_VOLTAGE             # open-circuit voltage, V
+        self._motor_current = [0.0, 0.0]
+        self.time = 0.0
+        """Simulated seconds stepped so far."""
+
+    # ------------------------------------------------------------------ inputs
+
+    def set_duty(self, left: float, right: float) -> None:
+        """Apply signed PWM duty fractions in [-1, 1] (sign = direction). ValueError otherwise."""
+        for name, value in (("left", left), ("right", right)):
+            if not (math.isfinite(value) and -1.0 <= value <= 1.0):
+                raise ValueError(f"{name} duty must be a finite number in [-1, 1], got {value}")
+        with self._lock:
+            self._duty = [float(left), float(right)]
+
+    def stall(self, wheel: str, on: bool) -> None:
+        """Block a wheel ("left" or "right"): it stops turning and draws stall current."""
+        index = _wheel_index(wheel)
+        with self._lock:
+            self._stalled[index] = on
+            if on:
+                self._speed[index] = 0.0
+
+    def set_battery_voltage(self, volts: float) -> None:
+        """Set the pack's open-circuit voltage, V (the terminal voltage sags under load)."""
+        if not (math.isfinite(volts) and 0.0 <= volts <= 20.0):
+            raise ValueError(f"battery voltage must be in [0, 20] V, got {volts}")
+        with self._lock:
+            self._ocv = float(volts)
+
+    # ------------------------------------------------------------------ physics
+
+    def steady_speed(self, duty: float, volts: float | None = None) -> float:
+        """Rim speed the wheel settles at for ``duty`` at battery ``volts``, m/s."""
+        pct = abs(duty) * 100.0
+        if pct <= DEAD_BAND_PCT:
+            return 0.0
+        volts = self._terminal_voltage() if volts is None else volts
+        counts_per_s = SLOPE_COUNTS_PER_PCT * pct * volts / NOMINAL_VOLTAGE
+        return math.copysign(counts_per_s * self._m_per_count, duty)
+
+    def step(self, dt: float) -> None:
+        """Advance by ``dt`` seconds: wheel speeds, encoder counts, pose, battery."""
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be a positive number of seconds, got {dt}")
+        with self._lock:
+            volts = self._terminal_voltage()
+            travel = [0.0, 0.0]               # rim travel this step, m
+            decay = math.exp(-dt / MOTOR_TAU)
+            for i in range(2):
+                target = 0.0 if self._stalled[i] else self.steady_speed(self._duty[i], volts)
+                v0 = self._speed[i]
+                # Exact integral of a first-order lag over the step.
+                travel[i] = target * dt + (v0 - target) * MOTOR_TAU * (1.0 - decay)
+                self._speed[i] = target + (v0 - target) * decay
+                self._motor_current[i] = self._current(i, target, volts)
+                noise = self._rng.gauss(0.0, self.encoder_noise) if self.encoder_noise else 0.0
+                self._counts[i] += travel[i] * (1.0 + noise) / self._m_per_count
+            if self.slip:
+                travel = [d * (1.0 + self._rng.gauss(0.0, self.slip)) for d in travel]
+            self._pose = self._integrate(self._pose, travel[0], travel[1])
+            current = BASE_CURRENT + sum(self._motor_current)
+            self._ocv = max(0.0, self._ocv - current * dt / 3600.0 / CAPACITY_AH
+                            * (FULL_VOLTAGE - EMPTY_VOLTAGE))
+            self.time += dt
+
+    def _current(self, i: int, target: float, volts: float) -> float:
+        """Motor current, A: no-load current when at speed, up to max-load when held back."""
+        duty = abs(self._duty[i])
+        if duty == 0.0:
+            return 0.0
+        free = abs(target)
+        load = 1.0 if free == 0.0 else min(1.0, abs(target - self._speed[i]) / free)
+        amps = NO_LOAD_CURRENT + (MAX_LOAD_CURRENT - NO_LOAD_CURRENT) * load
+        return amps * duty * volts / NOMINAL_VOLTAGE
+
+    def _integrate(self, pose: tuple[float, float, float], d_left: float,
+                   d_right: float) -> tuple[float, float, float]:
+        """Move along the circular arc that the two wheel travels (m) describe."""
+        x, y, theta = pose
+        ds = (d_left + d_right) / 2.0
+        dtheta = (d_right - d_left) / self.geometry.track
+        if abs(dtheta) < 1e-12:
+            x += ds * math.cos(theta)
+            y += ds * math.sin(theta)
+        else:
+            radius = ds / dtheta
+            x += radius * (math.sin(theta + dtheta) - math.sin(theta))
+            y -= radius * (math.cos(theta + dtheta) - math.cos(theta))
+        return x, y, wrap_angle(theta + dtheta)
+
+    def _terminal_voltage(self) -> float:
+        current = BASE_CURRENT + sum(self._motor_current)
+        return max(0.0, self._ocv - INTERNAL_RESISTANCE * current)
+
+    # ------------------------------------------------------------------ outputs
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """True (x m, y m, theta rad CCW in (-pi, pi])."""
+        with self._lock:
+            return self._pose
+
+    def set_pose(self, x: float, y: float, theta: float) -> None:
+        """Place the robot (m, m, rad)."""
+        with self._lock:
+            self._pose = (float(x), float(y), wrap_angle(theta))
+
+    def counts(self) -> tuple[int, int]:
+        """Encoder counts (left, right), unbounded; forward motion increases both."""
+        with self._lock:
+            return math.floor(self._counts[0]), math.floor(self._counts[1])
+
+    @property
+    def wheel_speeds(self) -> tuple[float, float]:
+        """Rim speeds (left, right), m/s."""
+        with self._lock:
+            return self._speed[0], self._speed[1]
+
+    @property
+    def duty(self) -> tuple[float, float]:
+        """PWM duty (left, right) last applied."""
+        with self._lock:
+            return self._duty[0], self._duty[1]
+
+    @property
+    def battery_voltage(self) -> float:
+        """Terminal voltage of the pack under the present load, V."""
+        with self._lock:
+            return self._terminal_voltage()
+
+    @property
+    def battery_current(self) -> float:
+        """Current drawn from the pack, A."""
+        with self._lock:
+            return BASE_CURRENT + sum(self._motor_current)
+
+
+def _wheel_index(wheel: str) -> int:
+    if wheel not in WHEELS:
+        raise ValueError(f'wheel must be "left" or "right", got {wheel!r}')
+    return WHEELS.index(wheel)
