@@ -134,8 +134,12 @@ class Power(Section):
     """The shutdown button must be held this long, s (like the old GPIOSoftShutdown daemon)."""
     request_hold_s: float = 15.0
     """The board's request line must stay low this long, s (reflashing over SPI toggles it)."""
-    halt_timeout_s: float = 3.0
-    """How long to wait for hwbridge to confirm the wheels stopped (`cmd/halt`), s."""
+    halt_timeout_s: float = 5.0
+    """How long to wait for hwbridge to confirm the wheels stopped (`cmd/halt`), s
+    (longer than hwbridge's own 3 s, so we hear its answer)."""
+    silent_s: float = 5.0
+    """Battery readings that stop this long while the state is low start a shutdown, s
+    (the PenguinPi firmware halts itself, and its readings, at 6.5 V)."""
     ack_delay_s: float = 0.5
     """Pause after dropping the acknowledge line, before powering off, s (the board shows its message)."""
 
@@ -193,6 +197,9 @@ class Localizer(Section):
     """Odometry heading noise from driving, rad per sqrt(m) travelled (slip, wheel radius errors)."""
     gate_chi2: float = 11.83
     """Mahalanobis gate on (range, bearing): chi-square, 2 degrees of freedom (11.83 = 99.73 %, "3 sigma")."""
+    relocalize_after: int = 30
+    """Lost: after this many sightings in a row fail the gate, restart from the next frame
+    showing >= 2 known markers (0 = never)."""
 
 
 class Sim(Section):

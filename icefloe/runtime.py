@@ -432,9 +432,12 @@ def run_async(coro: Coroutine[Any, Any, T2]) -> T2:
     return uvloop.run(coro)
 
 
-def run(main: Callable[[RobotConfig], Awaitable[None]], argv: Sequence[str] | None = None,
+def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str] | None = None,
         description: str | None = None) -> None:
-    """Run a service's ``main(config)`` until it returns or SIGINT/SIGTERM arrives."""
+    """Run a service's ``main(config)`` until it returns or SIGINT/SIGTERM arrives.
+
+    A non-zero int returned by ``main`` becomes the process's exit status (a signal exits 0).
+    """
     args = arguments(description or main.__module__, argv)
     logging.basicConfig(stream=sys.stderr, level=args.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -444,13 +447,17 @@ def run(main: Callable[[RobotConfig], Awaitable[None]], argv: Sequence[str] | No
         print(f"icefloe: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
 
-    async def supervised() -> None:
+    async def supervised() -> int | None:
         loop = asyncio.get_running_loop()
         task = asyncio.current_task()
         assert task is not None
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, task.cancel)
-        with contextlib.suppress(asyncio.CancelledError):
-            await main(cfg)
+        try:
+            return await main(cfg)
+        except asyncio.CancelledError:
+            return 0
 
-    run_async(supervised())
+    status = run_async(supervised())
+    if status:
+        raise SystemExit(status)

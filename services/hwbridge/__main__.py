@@ -1,0 +1,227 @@
+"""hwbridge: the robot's wheels and board I/O on the bus, driven by a hard real-time cycle.
+
+This is the bus process. It
+
+* subscribes to ``cmd/twist``, ``cmd/wheels``, ``cmd/stop``, ``io/leds``,
+  ``io/ledarray``, ``io/text``, ``io/screen`` and answers the ``cmd/motion``
+  and ``cmd/halt`` queries (`bridge.Bridge`);
+* starts the real-time process (`rt.py`: the cycle, no Zenoh in it), hands it
+  the commands through shared memory, and restarts it if it dies;
+* publishes ``hw/wheels`` (``hwbridge.wheels_rate_hz``), ``hw/loop`` (1 Hz),
+  ``hw/battery``, ``io/buttons`` and ``io/dip`` from the state the cycle writes.
+
+Safety lives in the cycle (deadman, stop latch, limits, EXIT/ALL_STOP on
+exit), so it holds even when this process is slow or gone.
+
+Run: ``python -m icefloe.services.hwbridge --config sim``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import msgspec
+import zenoh
+from icefloe.schemas import codec, keys
+from icefloe.schemas import messages as m
+
+from icefloe.config import RobotConfig
+from icefloe.errors import BadPayload, ConfigError
+from icefloe.runtime import Node, run
+
+from .bridge import Bridge, LoopReport
+from .rt import EXIT_MISMATCH
+from .shm import Shared, block_name
+
+RESTART_DELAY_S = 1.0
+"""Wait before restarting a real-time process that died."""
+
+
+def check_config(config: RobotConfig) -> None:
+    """Reject hwbridge settings the cycle cannot run with (`ConfigError` naming the key)."""
+    hw, g = config.hwbridge, config.geometry
+    positive = {
+        "hwbridge.rate_hz": hw.rate_hz, "hwbridge.serial_rate_hz": hw.serial_rate_hz,
+        "hwbridge.deadman_s": hw.deadman_s, "hwbridge.max_wheel_speed": hw.max_wheel_speed,
+        "hwbridge.max_accel": hw.max_accel, "hwbridge.speed_window_s": hw.speed_window_s,
+        "geometry.wheel_diameter": g.wheel_diameter, "geometry.track": g.track,
+        "geometry.ticks_per_rev": g.ticks_per_rev,
+    }
+    for name, value in positive.items():
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"{config.source}: {name}: must be a positive number, got {value}")
+    if hw.rate_hz > 10_000:
+        raise ConfigError(f"{config.source}: hwbridge.rate_hz: at most 10000 Hz, got {hw.rate_hz}")
+    if not (math.isfinite(hw.wheels_rate_hz) and hw.wheels_rate_hz >= 0):
+        raise ConfigError(f"{config.source}: hwbridge.wheels_rate_hz: must be >= 0 "
+                          f"(0 = every cycle), got {hw.wheels_rate_hz}")
+
+
+async def supervise(config: RobotConfig, bridge: Bridge, node: Node) -> int:
+    """Run the real-time process; restart it when it dies; stop it when we are cancelled.
+
+    Returns only when the board refused to run (its exit status)."""
+    payload = msgspec.json.encode(config)
+    shared = bridge.shared
+    while True:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "icefloe.services.hwbridge.rt", "--shm", shared.name,
+            stdin=asyncio.subprocess.PIPE)
+        assert proc.stdin is not None
+        proc.stdin.write(payload)
+        proc.stdin.close()
+        try:
+            code = await proc.wait()
+        except asyncio.CancelledError:
+            await _terminate(proc)
+            raise
+        bridge.forward_messages()  # its last words (e.g. why it refused the board)
+        if code == EXIT_MISMATCH:
+            node.log.error("the board does not match the config; hwbridge stops (see above)")
+            return code
+        node.log.error("real-time process exited with status %s; restarting in %.0f s",
+                       code, RESTART_DELAY_S)
+        await asyncio.sleep(RESTART_DELAY_S)
+
+
+async def _terminate(proc: asyncio.subprocess.Process) -> None:
+    """SIGTERM (the cycle stops the wheels and exits), SIGKILL if it does not within 2 s."""
+    if proc.returncode is not None:
+        return
+    proc.terminate()
+    try:
+        await asyncio.wait_for(asyncio.shield(proc.wait()), 2.0)
+    except TimeoutError:
+        proc.kill()
+        await proc.wait()
+
+
+async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
+    """State -> bus: hw/wheels at its rate, hw/loop at 1 Hz, battery/buttons/DIP on change."""
+    hw = config.hwbridge
+    wheels_pub = node.publisher(keys.WHEELS)
+    loop_pub = node.publisher(keys.LOOP)
+    battery_pub = node.publisher(keys.HW_BATTERY)
+    buttons_pub = node.publisher(keys.BUTTONS)
+    dip_pub = node.publisher(keys.DIP)
+    shared = bridge.shared
+    interval = 1.0 / (hw.wheels_rate_hz or hw.rate_hz)
+    report = LoopReport(_board_name(config))
+    last_sample = last_battery = last_presses = 0
+    last_dip = -1
+    next_loop = time.monotonic()
+    while True:
+        s = shared.read_state()
+        if not s["rt_started"]:  # the cycle has not written anything yet
+            await asyncio.sleep(interval)
+            continue
+        if s["sample_ns"] != last_sample and s["stamp"]:
+            last_sample = s["sample_ns"]
+            wheels_pub.put(bridge.wheels_message(s))
+        if s["battery_ns"] != last_battery:
+            last_battery = s["battery_ns"]
+            battery_pub.put(m.BatteryReading(stamp=time.time_ns(), voltage=s["battery_voltage"],
+                                             current=s["battery_current"]))
+        if s["button_presses"] > last_presses:
+            buttons_pub.put(m.Buttons(stamp=time.time_ns(), button=3,
+                                      presses=s["button_presses"] - last_presses))
+        last_presses = s["button_presses"]
+        if s["dip"] != last_dip and s["dip"] >= 0:
+            dip_pub.put(m.Dip(stamp=time.time_ns(), value=s["dip"]))
+        last_dip = s["dip"]
+        bridge.forward_messages()
+        now = time.monotonic()
+        if now >= next_loop:
+            next_loop += 1.0
+            stats = report.make(s, shared.hist, now)
+            bridge.epoch += 1  # the cycle restarts its maxima for the next interval
+            bridge.sync()
+            if stats is not None:
+                loop_pub.put(stats)
+        await asyncio.sleep(interval)
+
+
+def _board_name(config: RobotConfig) -> str:
+    b = config.board
+    return f"icoboard-v{b.protocol}" if b.kind == "icoboard" else "penguinpi"
+
+
+GIL_SWITCH_S = 0.0005
+"""Python hands the GIL to a waiting thread after this long (default 5 ms), so a ``cmd/stop``
+arriving on a Zenoh thread does not wait behind the event loop for milliseconds."""
+
+
+async def main(config: RobotConfig) -> int:
+    """Returns the exit status: 0 when stopped by a signal, 2 for a bad config, 3 when the board
+    does not match the config."""
+    sys.setswitchinterval(GIL_SWITCH_S)
+    async with Node("hwbridge", config) as node:
+        try:
+            check_config(config)
+        except ConfigError as exc:
+            node.log.error("%s", exc)
+            return 2
+        shared = Shared.create(block_name(config.name))
+        bridge = Bridge(config, shared, node.log)
+        stop_sub = fast_stop(node, bridge)
+        try:
+            async with asyncio.TaskGroup() as tasks:
+                # When the supervisor returns (the board refused), everything else stops too.
+                cycle = tasks.create_task(supervise(config, bridge, node))
+                others = [tasks.create_task(publish(config, bridge, node))]
+                for topic, handler in ((keys.TWIST, bridge.twist), (keys.WHEELS_CMD, bridge.wheels),
+                                       (keys.LEDS, bridge.led), (keys.LEDARRAY, bridge.ledarray),
+                                       (keys.BOARD_TEXT, bridge.text),
+                                       (keys.BOARD_SCREEN, bridge.screen)):
+                    others.append(tasks.create_task(_forward(node, topic, handler)))
+                node.queryable(keys.MOTION, bridge.motion)
+                node.queryable(keys.HALT, bridge.halt)
+                node.log.info("hwbridge up: %s, cycle at %g Hz", _board_name(config),
+                              config.hwbridge.rate_hz)
+
+                def stop_the_rest(_cycle: asyncio.Task[None]) -> None:
+                    for task in others:
+                        task.cancel()
+
+                cycle.add_done_callback(stop_the_rest)
+        finally:
+            # The supervisor has stopped the cycle (wheels told to stop) before we get here.
+            with contextlib.suppress(Exception):
+                stop_sub.undeclare()  # first: its callback writes to the shared memory
+            shared.close()
+        return cycle.result()
+
+
+def fast_stop(node: Node, bridge: Bridge) -> zenoh.Subscriber:
+    """``cmd/stop``, latched on the Zenoh thread that delivers it.
+
+    The other inputs go through the event loop, which a flood of messages can
+    keep busy for tens of milliseconds; a stop must not wait in that queue.
+    """
+    key_expr = node.key(keys.STOP)
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        try:
+            codec.decode(sample.payload.to_bytes(), str(sample.encoding), m.Stop, key_expr)
+        except BadPayload as exc:
+            node.log.warning("dropped: %s", exc)
+            return
+        bridge.stop(keys.STOP.name)
+
+    return node.session.declare_subscriber(key_expr, on_sample)
+
+
+async def _forward(node: Node, topic: keys.Topic, handler: Callable[[Any], None]) -> None:
+    """Every message of ``topic`` (FIFO), to ``handler``."""
+    async for msg in node.subscribe(topic):
+        handler(msg)
+
+
+if __name__ == "__main__":
+    run(main)

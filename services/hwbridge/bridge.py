@@ -1,0 +1,259 @@
+"""hwbridge's bus side: bus messages -> shared-memory commands, shared-memory state -> bus.
+
+`Bridge` owns the command half of the shared memory (`shm.Shared`): wheel
+targets, the time of the last motion command (the real-time cycle applies
+the deadman against it), the stop latch and the I/O ring. It validates and
+clamps every input, with a log line naming the key and the value. It reads
+the state half to publish ``hw/wheels``, ``hw/loop``, ``hw/battery``,
+``io/buttons`` and ``io/dip``, and forwards the cycle's messages to ``log``.
+
+Nothing here is timing-critical: a late bus message can only make the
+deadman stop the wheels, never make them run on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+
+from icefloe.config import RobotConfig
+from icefloe.errors import BadPayload
+
+from .control import (
+    HIST_BINS,
+    MotionProfile,
+    limit_wheels,
+    percentiles,
+    twist_to_wheels,
+)
+from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, Shared
+
+MOTION_STEP_S = 0.02
+"""A timed motion re-sends its targets at 50 Hz (which also feeds the deadman)."""
+HALTED_SPEED = 0.005
+"""``cmd/halt`` answers once both measured speeds are below this, m/s."""
+HALT_TIMEOUT_S = 3.0
+
+
+class RateLimitedLog:
+    """At most one line per ``key`` per second; the lines in between are counted."""
+
+    def __init__(self, log: logging.Logger, clock: Callable[[], float] = time.monotonic) -> None:
+        self._log, self._clock = log, clock
+        self._last: dict[str, float] = {}
+        self._held: dict[str, int] = {}
+
+    def warning(self, key: str, text: str) -> None:
+        now = self._clock()
+        if now - self._last.get(key, -1e9) < 1.0:
+            self._held[key] = self._held.get(key, 0) + 1
+            return
+        held = self._held.pop(key, 0)
+        self._log.warning("%s%s", text, f" (and {held} more like it)" if held else "")
+        self._last[key] = now
+
+
+class Bridge:
+    """Commands in, state out, for one robot; ``shared`` is the block the cycle attaches to."""
+
+    def __init__(self, config: RobotConfig, shared: Shared, log: logging.Logger) -> None:
+        self.config = config
+        self.shared = shared
+        self.log = log
+        self.limited = RateLimitedLog(log)
+        self.max_speed = config.hwbridge.max_wheel_speed
+        self.left = self.right = 0.0
+        self.fresh_ns = 0
+        self.stopped = False
+        self.epoch = 0
+        self._lock = threading.Lock()
+        """`stop` may run on a Zenoh thread (the fast path): one writer at a time."""
+        self._loop = asyncio.get_running_loop()
+        self._motion: asyncio.Future[str] | None = None
+        """Set while a timed motion runs; resolved with the reason it was cut short."""
+        self.sync()
+
+    def sync(self) -> None:
+        """Write the command fields to shared memory (the cycle reads them every period)."""
+        with self._lock:
+            self.shared.write_commands(self.left, self.right, self.fresh_ns, self.stopped,
+                                       self.epoch)
+
+    # ------------------------------------------------------------------ commands
+
+    def drive(self, left: float, right: float, source: str, *, from_motion: bool = False) -> None:
+        """New wheel targets (m/s): clamp (logged), release the stop latch, feed the deadman."""
+        left, right, clamped = limit_wheels(left, right, self.max_speed)
+        if clamped:
+            self.limited.warning(f"clamp:{source}", f"{source}: clamped to {self.max_speed} m/s "
+                                 f"per wheel (left {left:.3f}, right {right:.3f})")
+        if not from_motion:
+            self.cut_motion(f"another command on {source}")
+        with self._lock:
+            self.left, self.right = left, right
+            self.stopped = False
+            self.fresh_ns = time.monotonic_ns()
+        self.sync()
+
+    def twist(self, msg: m.Twist) -> None:
+        left, right = twist_to_wheels(msg.v, msg.w, self.config.geometry.track)
+        self.drive(left, right, keys.TWIST.name)
+
+    def wheels(self, msg: m.WheelSpeeds) -> None:
+        self.drive(msg.left, msg.right, keys.WHEELS_CMD.name)
+
+    def stop(self, why: str = "cmd/stop") -> None:
+        """Latch a stop: the wheels stay stopped until the next motion command.
+
+        Safe to call from any thread: ``cmd/stop`` is latched straight from the
+        Zenoh callback, without waiting for a busy event loop.
+        """
+        with self._lock:
+            self.left = self.right = 0.0
+            self.stopped = True
+        self.sync()
+        if threading.current_thread() is threading.main_thread():
+            self.cut_motion(why)
+        else:
+            self._loop.call_soon_threadsafe(self.cut_motion, why)
+
+    def cut_motion(self, why: str) -> None:
+        if self._motion is not None and not self._motion.done():
+            self._motion.set_result(why)
+
+    async def motion(self, msg: m.Motion) -> m.MotionDone:
+        """Run a timed motion; answer when it ends or is cut short."""
+        try:
+            profile = MotionProfile(msg.left, msg.right, msg.duration, msg.accel, time.monotonic())
+        except ValueError as exc:
+            raise BadPayload(f"{keys.MOTION.name}: {exc}") from None
+        self.cut_motion("another cmd/motion")
+        cut: asyncio.Future[str] = asyncio.get_running_loop().create_future()
+        self._motion = cut
+        while True:
+            left, right, done = profile.at(time.monotonic())
+            if done:
+                break
+            self.drive(left, right, keys.MOTION.name, from_motion=True)
+            try:
+                reason = await asyncio.wait_for(asyncio.shield(cut), MOTION_STEP_S)
+            except TimeoutError:
+                continue
+            return m.MotionDone(stamp=time.time_ns(), completed=False, reason=reason)
+        self._motion = None
+        self.drive(0.0, 0.0, keys.MOTION.name, from_motion=True)
+        return m.MotionDone(stamp=time.time_ns(), completed=True, reason="")
+
+    async def halt(self, _msg: m.Stop) -> m.Wheels:
+        """Stop the wheels; answer with `Wheels` once both measured speeds are ~0."""
+        self.stop("cmd/halt")
+        deadline = time.monotonic() + HALT_TIMEOUT_S
+        while time.monotonic() < deadline:
+            state = self.shared.read_state()
+            fresh = state["sample_ns"] > time.monotonic_ns() - 100_000_000
+            if (fresh and abs(state["speed_left"]) < HALTED_SPEED
+                    and abs(state["speed_right"]) < HALTED_SPEED):
+                return self.wheels_message(state)
+            await asyncio.sleep(0.01)
+        self.log.warning("cmd/halt: wheels not measured at rest within %.0f s", HALT_TIMEOUT_S)
+        return self.wheels_message(self.shared.read_state())
+
+    # ------------------------------------------------------------------ board I/O
+
+    def _push(self, source: str, kind: int, a: int = 0, b: int = 0, data: bytes = b"") -> None:
+        if not self.shared.push_io(kind, a, b, data):
+            self.limited.warning(f"full:{source}", f"{source}: board command queue full, dropped")
+
+    def led(self, msg: m.Led) -> None:
+        if not 1 <= msg.led <= 4:
+            self.log.warning("io/leds: led must be 1..4, got %d; ignored", msg.led)
+            return
+        ms = round(msg.pulse * 1000)
+        if ms > 255:
+            self.log.warning("io/leds: pulse %.3f s is longer than the board's 0.255 s; clamped",
+                             msg.pulse)
+            ms = 255
+        # b: ms to pulse (> 0), 0 = on, -1 = off
+        self._push("io/leds", IO_LED, msg.led, ms if msg.pulse > 0 else (0 if msg.on else -1))
+
+    def ledarray(self, msg: m.LedArray) -> None:
+        if not 0 <= msg.mask <= 0xFFFF:
+            self.log.warning("io/ledarray: mask must be 0..65535, got %d; ignored", msg.mask)
+            return
+        self._push("io/ledarray", IO_LEDARRAY, msg.mask)
+
+    def screen(self, msg: m.OledScreen) -> None:
+        if not 0 <= msg.index <= 255:
+            self.log.warning("io/screen: index must be 0..255, got %d; ignored", msg.index)
+            return
+        self._push("io/screen", IO_SCREEN, msg.index)
+
+    def text(self, msg: m.OledText) -> None:
+        data = msg.text.encode("ascii", "replace")
+        for i in range(0, len(data), 64):
+            self._push("io/text", IO_TEXT, data=data[i:i + 64])
+
+    # ------------------------------------------------------------------ state -> bus
+
+    def wheels_message(self, s: dict) -> m.Wheels:
+        return m.Wheels(stamp=s["stamp"], ticks_left=s["ticks_left"], ticks_right=s["ticks_right"],
+                        speed_left=s["speed_left"], speed_right=s["speed_right"],
+                        target_left=s["target_left"], target_right=s["target_right"])
+
+    def forward_messages(self) -> None:
+        """The cycle's lines (board text, link state, warnings) onto ``log``."""
+        lines, lost = self.shared.pop_messages()
+        if lost:
+            self.log.warning("%d lines from the real-time cycle were lost (too many at once)", lost)
+        for kind, text in lines:
+            if kind == MSG_BOARD:
+                self.log.info("board says: %s", text)
+            elif kind == MSG_WARNING:
+                self.log.warning("%s", text)
+            elif kind == MSG_ERROR:
+                self.log.error("%s", text)
+            else:
+                self.log.info("%s", text)
+
+
+class LoopReport:
+    """Turns two state snapshots (and the histogram) into one `LoopStats` per interval."""
+
+    def __init__(self, board: str) -> None:
+        self.board = board
+        self._prev: dict | None = None
+        self._prev_t = 0.0
+        self._hist = [0] * HIST_BINS
+
+    def make(self, state: dict, hist, now: float) -> m.LoopStats | None:
+        counts = list(hist)
+        prev, self._prev = self._prev, state
+        delta = [c - p for c, p in zip(counts, self._hist, strict=True)]
+        self._hist = counts
+        elapsed, self._prev_t = now - self._prev_t, now
+        if prev is None or elapsed <= 0:
+            return None
+        cycles = state["cycles"] - prev["cycles"]
+        p50, p99, p999 = percentiles(delta, (0.5, 0.99, 0.999))
+        errors = sum(state[k] for k in ("crc_errors", "timeouts", "unmatched", "lost", "late"))
+        return m.LoopStats(
+            stamp=time.time_ns(),
+            rate=cycles / elapsed,
+            period_mean=(state["period_sum_ns"] - prev["period_sum_ns"]) / cycles * 1e-9
+            if cycles else 0.0,
+            period_max=state["period_max_ns"] * 1e-9,
+            latency_p50=p50, latency_p99=p99, latency_p999=p999,
+            latency_max=state["latency_max_ns"] * 1e-9,
+            overruns=state["overruns"], cycles=state["cycles"], board=self.board,
+            link_errors=errors + state["garbage_bytes"],
+            link_rate=(state["exchanges"] - prev["exchanges"]) / elapsed,
+            crc_errors=state["crc_errors"], timeouts=state["timeouts"],
+            unmatched=state["unmatched"], garbage_bytes=state["garbage_bytes"],
+            board_errors=state["board_errors"],
+        )

@@ -1,0 +1,300 @@
+"""hwbridge's real-time process: the periodic cycle that talks to the board.
+
+Started by the bus process (``__main__.py``) as ``python -m
+icefloe.services.hwbridge.rt --shm NAME`` with the robot config as JSON on
+stdin. It never imports Zenoh: a Zenoh callback thread can hold the GIL for
+milliseconds, so the cycle lives in a process of its own and exchanges data
+with the bus process only through shared memory (`shm.Shared`).
+
+Each period (``hwbridge.rate_hz``, 1 kHz by default):
+
+1. sleep until an *absolute* deadline: libc ``clock_nanosleep(CLOCK_MONOTONIC,
+   TIMER_ABSTIME)`` through ctypes (Python's ``time.sleep`` is relative, so its
+   error would accumulate); record the wake-up latency in a fixed histogram;
+2. read the commands (seqlock), apply stop latch, deadman, speed limit and
+   acceleration limit (`control`);
+3. run one board exchange (`board.Board.cycle`: never waits on the link);
+4. publish the state (seqlock) and forward at most one LED/text/screen command.
+
+A cycle that ends after the next deadline is an overrun: it is counted and the
+missed deadlines are skipped, not caught up in a burst.
+
+Where the OS allows it: ``SCHED_FIFO`` at ``hwbridge.priority``, ``mlockall``,
+pinned to ``hwbridge.cpu``; otherwise one warning each and carry on. The garbage
+collector is disabled and every object made during setup is frozen; the cycle
+itself creates only short-lived objects that reference counting frees at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import ctypes.util
+import gc
+import math
+import os
+import signal
+import sys
+import time
+
+import msgspec
+
+from icefloe.config import RobotConfig
+from icefloe.errors import BoardError, BoardMismatch
+
+from .board import MSG_ERROR, MSG_INFO, MSG_WARNING, Board, Say, make_board
+from .control import SlewLimiter, gate, hist_bin
+from .shm import STATE_FIELDS, Shared
+
+CLOCK_MONOTONIC = 1
+TIMER_ABSTIME = 1
+MCL_CURRENT, MCL_FUTURE = 1, 2
+PR_SET_PDEATHSIG = 1
+RETRY_NS = 1_000_000_000
+"""After the board link is lost, try to reopen it once a second."""
+EXIT_MISMATCH = 3
+"""Exit status when the board is not the one the config describes (do not restart)."""
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+class AbsoluteTimer:
+    """Sleeps until an absolute CLOCK_MONOTONIC time, in ns.
+
+    Uses libc ``clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, ...)``; the
+    argument struct is allocated once. Where libc has no clock_nanosleep, falls
+    back to ``time.sleep`` of the remaining time (``self.kind`` says which).
+    """
+
+    def __init__(self) -> None:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        self._ts = _Timespec()
+        self._ref = ctypes.byref(self._ts)
+        try:
+            self._sleep = libc.clock_nanosleep
+            self._sleep.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.POINTER(_Timespec),
+                                    ctypes.c_void_p]
+            self._sleep.restype = ctypes.c_int
+            self.kind = "clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME) via ctypes"
+        except AttributeError:
+            self._sleep = None
+            self.kind = "time.sleep (relative; no clock_nanosleep in libc)"
+
+    def sleep_until(self, deadline_ns: int) -> None:
+        """Return at or after ``deadline_ns`` (early only if a signal arrives)."""
+        if self._sleep is None:
+            remaining = deadline_ns - time.monotonic_ns()
+            if remaining > 0:
+                time.sleep(remaining * 1e-9)
+            return
+        self._ts.tv_sec, self._ts.tv_nsec = divmod(deadline_ns, 1_000_000_000)
+        self._sleep(CLOCK_MONOTONIC, TIMER_ABSTIME, self._ref, None)  # EINTR: the caller checks
+
+
+def make_realtime(priority: int, cpu: int, say: Say) -> None:
+    """SCHED_FIFO, mlockall and CPU pinning, each where permitted (one warning when not)."""
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError, ValueError) as exc:
+        say(MSG_WARNING, f"cannot use SCHED_FIFO priority {priority} ({exc}); "
+                         "running at normal priority, expect more latency")
+    if libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
+        err = ctypes.get_errno()
+        say(MSG_WARNING, f"mlockall failed ({os.strerror(err)}); pages may be swapped out")
+    try:
+        cpus = sorted(os.sched_getaffinity(0))
+        target = cpus[-1] if cpu < 0 else cpu
+        os.sched_setaffinity(0, {target})
+    except (OSError, AttributeError, ValueError) as exc:
+        say(MSG_WARNING, f"cannot pin the cycle to CPU {cpu} ({exc})")
+    # If the bus process dies, the kernel sends us SIGTERM: we stop the wheels and exit.
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+
+
+class Cycle:
+    """The periodic loop: commands in, one board exchange, state out."""
+
+    def __init__(self, config: RobotConfig, shared: Shared, board: Board | None = None) -> None:
+        hw = config.hwbridge
+        self.config = config
+        self.shared = shared
+        self.period_ns = round(1e9 / hw.rate_hz)
+        self.deadman_ns = round(hw.deadman_s * 1e9)
+        self.max_speed = hw.max_wheel_speed
+        self.board = board or make_board(config, self.say)
+        self.slew = (SlewLimiter(hw.max_accel), SlewLimiter(hw.max_accel))
+        self.stopping = False
+        self.link_up = False
+        self.mismatch = False
+        self._next_retry = 0
+        self._link_warned = False
+        self._epoch = 0
+        self._last_wake = 0
+        self._last_dt = 1.0 / hw.rate_hz
+        self._parent = os.getppid()
+        # Loop statistics (the histogram itself lives in shared memory).
+        self.cycles = self.overruns = self.period_sum = self.period_max = self.latency_max = 0
+        self.stop_reason = 0
+        self.io_dropped = 0
+        self.target_left = self.target_right = 0.0
+        self._state = [0] * len(STATE_FIELDS)
+        self._started = time.monotonic()
+
+    def say(self, kind: int, text: str) -> None:
+        self.shared.push_message(kind, text)
+
+    # ------------------------------------------------------------------ one period
+
+    def step(self, now_ns: int) -> None:
+        """Everything a period does after waking up at ``now_ns`` (CLOCK_MONOTONIC)."""
+        try:
+            left, right, fresh_ns, stop, epoch = self.shared.read_commands()
+        except TimeoutError:
+            left = right = 0.0
+            fresh_ns, stop, epoch = 0, 1, self._epoch  # a writer died mid-write: stop
+        if epoch != self._epoch:
+            self._epoch = epoch
+            self.period_max = self.latency_max = 0
+        self.stop_reason = gate(fresh_ns, bool(stop), now_ns, self.deadman_ns)
+        stopped = self.stop_reason != 0
+        if stopped or not (math.isfinite(left) and math.isfinite(right)):
+            stopped = True
+            self.slew[0].reset()
+            self.slew[1].reset()
+            self.target_left = self.target_right = 0.0
+        else:
+            # The bus side already clamped and logged; this is the last line of defence.
+            limit = self.max_speed
+            left = limit if left > limit else -limit if left < -limit else left
+            right = limit if right > limit else -limit if right < -limit else right
+            self.target_left = self.slew[0].step(left, self._last_dt)
+            self.target_right = self.slew[1].step(right, self._last_dt)
+        self._board_step(now_ns, stopped)
+        item = self.shared.pop_io()
+        if item is not None:
+            if self.link_up:
+                self.board.io(*item)
+            else:
+                self.io_dropped += 1
+        self._publish()
+
+    def _board_step(self, now_ns: int, stopped: bool) -> None:
+        board = self.board
+        if not self.link_up:
+            if now_ns < self._next_retry:
+                return
+            self._next_retry = now_ns + RETRY_NS
+            try:
+                board.open(now_ns)
+            except BoardMismatch as exc:
+                self.mismatch = True
+                self.stopping = True
+                self.say(MSG_ERROR, f"refusing to run: {exc}")
+                return
+            except BoardError as exc:
+                if not self._link_warned:
+                    self.say(MSG_WARNING, f"board link down: {exc}; retrying every second")
+                    self._link_warned = True
+                return
+            self.link_up = True
+            self._link_warned = False
+            self.say(MSG_INFO, f"board link up: {board.name}")
+        try:
+            board.cycle(now_ns, self.target_left, self.target_right, stopped)
+        except BoardError as exc:
+            self.link_up = False
+            self._next_retry = now_ns + RETRY_NS
+            self.say(MSG_WARNING, f"board link lost: {exc}; retrying every second")
+            self._link_warned = True
+            board.stop()
+            board.close()
+
+    def _publish(self) -> None:
+        b, s = self.board, self._state
+        s[:] = (
+            b.stamp, b.sample_ns, b.ticks_left, b.ticks_right, b.exchanges, int(self.link_up),
+            b.speed_left, b.speed_right, self.target_left, self.target_right,
+            b.duty_left, b.duty_right,
+            self.cycles, self.overruns, self.period_sum, self.period_max, self.latency_max,
+            self._epoch, self.stop_reason, b.crc_errors, b.timeouts, b.unmatched,
+            b.garbage_bytes, b.board_errors,
+            b.battery_voltage, b.battery_current, self._started,
+            b.battery_ns, b.button_presses, b.dip, b.late, b.lost, self.io_dropped, 0,
+            os.getpid(), int(self.mismatch), b.watchdog, 0, 0,
+        )
+        self.shared.write_state(s)
+
+    # ------------------------------------------------------------------ the loop
+
+    def run(self, timer: AbsoluteTimer) -> None:
+        period = self.period_ns
+        hist = self.shared.hist
+        deadline = time.monotonic_ns() + period
+        self._last_wake = deadline - period
+        while not self.stopping:
+            timer.sleep_until(deadline)
+            woke = time.monotonic_ns()
+            if woke < deadline:
+                continue  # a signal woke us early: check `stopping`, sleep again
+            latency = woke - deadline
+            hist[hist_bin(latency)] += 1
+            if latency > self.latency_max:
+                self.latency_max = latency
+            elapsed = woke - self._last_wake
+            self._last_wake = woke
+            self._last_dt = elapsed * 1e-9
+            self.period_sum += elapsed
+            if elapsed > self.period_max:
+                self.period_max = elapsed
+            self.cycles += 1
+            self.step(woke)
+            if self.cycles % 500 == 0 and os.getppid() != self._parent:
+                self.say(MSG_WARNING, "bus process is gone: stopping")
+                break
+            deadline += period
+            end = time.monotonic_ns()
+            if end > deadline:
+                missed = (end - deadline) // period + 1
+                self.overruns += missed
+                deadline += missed * period
+
+    def shutdown(self) -> None:
+        """Stop the wheels (EXIT / MULTI_ALL_STOP) and release the link."""
+        self.board.stop()
+        self.board.close()
+        self._publish()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="hwbridge real-time cycle (started by hwbridge)")
+    parser.add_argument("--shm", required=True, help="name of the shared-memory block")
+    args = parser.parse_args(argv)
+    config = msgspec.json.decode(sys.stdin.buffer.read(), type=RobotConfig)
+    shared = Shared.attach(args.shm)
+    cycle = Cycle(config, shared)
+
+    def on_signal(signum: int, frame: object) -> None:
+        cycle.stopping = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    hw = config.hwbridge
+    make_realtime(hw.priority, hw.cpu, cycle.say)
+    timer = AbsoluteTimer()
+    cycle.say(MSG_INFO, f"cycle at {hw.rate_hz:g} Hz, timer: {timer.kind}, board: {cycle.board.name}")
+    gc.collect()
+    gc.disable()  # no collector pauses inside the cycle; nothing there makes reference cycles
+    gc.freeze()
+    try:
+        cycle.run(timer)
+    finally:
+        cycle.shutdown()
+        shared.close()
+    return EXIT_MISMATCH if cycle.mismatch else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,243 @@
+"""The shared-memory layout between hwbridge's bus process and its real-time process.
+
+One `multiprocessing.shared_memory` block with a fixed layout (offsets below).
+Each field has exactly one writer:
+
+=========  ======================  =========================================
+region     writer                  holds
+=========  ======================  =========================================
+commands   bus process             wheel targets, command time (deadman),
+                                   stop latch, statistics epoch
+io ring    bus process (head)      LED / LED array / screen / text commands
+           RT process (tail)
+state      RT process              encoder sample, speeds, targets, loop and
+                                   link statistics, battery, buttons, DIP
+histogram  RT process              wake-up latency counts (`control.hist_bin`)
+messages   RT process (head)       board text lines and the RT process's own
+                                   log lines, read by the bus process
+=========  ======================  =========================================
+
+Snapshots (commands, state) are protected by a **seqlock**: the writer makes
+the sequence number odd, writes, makes it even again; a reader copies the
+fields and retries if the number was odd or changed meanwhile. The writer never
+waits for a reader, which is what the real-time side needs. The rings are
+single-producer single-consumer: the producer fills a slot, then advances its
+head; the consumer reads, then advances its tail.
+
+Memory ordering: every field is a naturally aligned 8-byte word, written with
+one store. On x86 (TSO) stores become visible in program order, which is all a
+seqlock needs. On ARM64 the hardware may reorder stores; each Python statement
+between the stores runs hundreds of instructions and system calls, which in
+practice orders them, but a C implementation would need explicit barriers.
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+from multiprocessing import resource_tracker, shared_memory
+
+from .control import HIST_BINS
+
+# --------------------------------------------------------------------------- layout
+
+COMMANDS = struct.Struct("<ddqqq")
+"""target_left m/s, target_right m/s, fresh_ns (monotonic ns of the last motion command,
+0 = none), stop (1 = latched), stats_epoch (bumped by the bus side to restart the maxima)."""
+
+STATE = struct.Struct("<" + "q" * 6 + "d" * 6 + "q" * 12 + "d" * 3 + "q" * 12)
+"""See `State` for the field order."""
+
+STATE_FIELDS = (
+    # encoder sample
+    "stamp", "sample_ns", "ticks_left", "ticks_right", "exchanges", "link_up",
+    # wheels (m/s)
+    "speed_left", "speed_right", "target_left", "target_right", "duty_left", "duty_right",
+    # loop statistics (since start unless noted)
+    "cycles", "overruns", "period_sum_ns", "period_max_ns", "latency_max_ns", "stats_epoch",
+    "stop_reason", "crc_errors", "timeouts", "unmatched", "garbage_bytes", "board_errors",
+    # board readings
+    "battery_voltage", "battery_current", "rt_started",
+    "battery_ns", "button_presses", "dip", "late", "lost", "io_dropped", "text_lost",
+    "pid", "mismatch", "watchdog", "spare1", "spare2",
+)  # fmt: skip
+
+IO_SLOTS = 32
+IO_DATA = 64
+IO_SLOT = struct.Struct(f"<qqqq{IO_DATA}s")
+"""kind, a, b, data length, data bytes."""
+IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT = 1, 2, 3, 4
+
+MSG_SLOTS = 64
+MSG_TEXT = 240
+MSG_SLOT = struct.Struct(f"<qq{MSG_TEXT}s")
+"""kind (MSG_*), text length, text (UTF-8)."""
+MSG_BOARD, MSG_INFO, MSG_WARNING, MSG_ERROR = 1, 2, 3, 4
+
+_WORD = struct.Struct("<q")
+READ_TRIES = 10_000
+"""Seqlock read attempts before giving up (`Shared._read`)."""
+
+OFF_CMD_SEQ = 0
+OFF_CMD = 8
+OFF_IO_HEAD = OFF_CMD + COMMANDS.size
+OFF_IO_TAIL = OFF_IO_HEAD + 8
+OFF_IO = OFF_IO_TAIL + 8
+OFF_STATE_SEQ = OFF_IO + IO_SLOTS * IO_SLOT.size
+OFF_STATE = OFF_STATE_SEQ + 8
+OFF_HIST = OFF_STATE + STATE.size
+OFF_MSG_HEAD = OFF_HIST + 8 * HIST_BINS
+OFF_MSG = OFF_MSG_HEAD + 8
+SIZE = OFF_MSG + MSG_SLOTS * MSG_SLOT.size
+
+assert len(STATE_FIELDS) == len(STATE.format) - 1, "STATE format and field list disagree"
+assert all(off % 8 == 0 for off in (OFF_CMD, OFF_IO, OFF_STATE, OFF_HIST, OFF_MSG)), "unaligned"
+
+
+def block_name(robot: str) -> str:
+    """The shared-memory name of a robot's hwbridge (``/dev/shm/icefloe-hwbridge-<robot>``)."""
+    return f"icefloe-hwbridge-{robot}"
+
+
+class Shared:
+    """A view of the hwbridge shared-memory block: ``Shared.create()`` or ``Shared.attach(name)``."""
+
+    def __init__(self, shm: shared_memory.SharedMemory, owner: bool) -> None:
+        self.shm = shm
+        self.owner = owner
+        self.buf = shm.buf
+        self.hist = shm.buf[OFF_HIST:OFF_HIST + 8 * HIST_BINS].cast("q")
+        """Latency histogram counts, one 8-byte word per bin (written by the RT process only)."""
+        self._state = [0] * len(STATE_FIELDS)
+        self._msg_tail = 0
+
+    @classmethod
+    def create(cls, name: str | None = None) -> Shared:
+        """A new zeroed block; ``name`` (e.g. `block_name`) lets tools attach to read it.
+
+        A block of that name left behind by a killed hwbridge is replaced.
+        """
+        try:
+            shm = shared_memory.SharedMemory(name=name, create=True, size=SIZE)
+        except FileExistsError:
+            stale = shared_memory.SharedMemory(name=name)
+            stale.close()
+            stale.unlink()
+            shm = shared_memory.SharedMemory(name=name, create=True, size=SIZE)
+        shm.buf[:SIZE] = bytes(SIZE)
+        return cls(shm, owner=True)
+
+    @classmethod
+    def attach(cls, name: str) -> Shared:
+        """The block another process created. Only its creator unlinks it."""
+        if sys.version_info >= (3, 13):
+            shm = shared_memory.SharedMemory(name=name, track=False)
+        else:
+            # Before 3.13 attaching registers the block with this process's resource
+            # tracker, which would unlink it when we exit (and a restarted RT process
+            # could no longer attach). Undo that registration.
+            shm = shared_memory.SharedMemory(name=name)
+            resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+        return cls(shm, owner=False)
+
+    @property
+    def name(self) -> str:
+        return self.shm.name
+
+    def close(self) -> None:
+        self.hist.release()
+        self.buf = None  # type: ignore[assignment]
+        self.shm.close()
+        if self.owner:
+            self.shm.unlink()
+
+    # ------------------------------------------------------------------ seqlock
+
+    def _word(self, offset: int) -> int:
+        return _WORD.unpack_from(self.buf, offset)[0]
+
+    def _set_word(self, offset: int, value: int) -> None:
+        _WORD.pack_into(self.buf, offset, value)
+
+    def _read(self, seq_off: int, layout: struct.Struct, off: int) -> tuple:
+        # A write takes microseconds, so a few retries always suffice -- unless the writer
+        # died half-way (odd sequence forever): then give up instead of spinning at RT priority.
+        for _ in range(READ_TRIES):
+            before = self._word(seq_off)
+            if before & 1:
+                continue
+            values = layout.unpack_from(self.buf, off)
+            if self._word(seq_off) == before:
+                return values
+        raise TimeoutError("shared memory: the writer never finished (did it die mid-write?)")
+
+    def _write(self, seq_off: int, layout: struct.Struct, off: int, *values: object) -> None:
+        seq = self._word(seq_off)
+        self._set_word(seq_off, seq + 1)
+        layout.pack_into(self.buf, off, *values)
+        self._set_word(seq_off, seq + 2)
+
+    # ------------------------------------------------------------------ commands (bus -> RT)
+
+    def write_commands(self, left: float, right: float, fresh_ns: int, stop: bool,
+                       epoch: int) -> None:
+        self._write(OFF_CMD_SEQ, COMMANDS, OFF_CMD, left, right, fresh_ns, int(stop), epoch)
+
+    def read_commands(self) -> tuple[float, float, int, int, int]:
+        """(target_left, target_right, fresh_ns, stop, stats_epoch)."""
+        return self._read(OFF_CMD_SEQ, COMMANDS, OFF_CMD)  # type: ignore[return-value]
+
+    # ------------------------------------------------------------------ io ring (bus -> RT)
+
+    def push_io(self, kind: int, a: int = 0, b: int = 0, data: bytes = b"") -> bool:
+        """Queue an I/O command for the board; False if the ring is full (the caller logs it)."""
+        head, tail = self._word(OFF_IO_HEAD), self._word(OFF_IO_TAIL)
+        if head - tail >= IO_SLOTS:
+            return False
+        data = data[:IO_DATA]
+        IO_SLOT.pack_into(self.buf, OFF_IO + (head % IO_SLOTS) * IO_SLOT.size,
+                          kind, a, b, len(data), data)
+        self._set_word(OFF_IO_HEAD, head + 1)
+        return True
+
+    def pop_io(self) -> tuple[int, int, int, bytes] | None:
+        """The oldest queued I/O command as (kind, a, b, data), or None."""
+        head, tail = self._word(OFF_IO_HEAD), self._word(OFF_IO_TAIL)
+        if head == tail:
+            return None
+        kind, a, b, n, data = IO_SLOT.unpack_from(self.buf, OFF_IO + (tail % IO_SLOTS) * IO_SLOT.size)
+        self._set_word(OFF_IO_TAIL, tail + 1)
+        return kind, a, b, data[:n]
+
+    # ------------------------------------------------------------------ state (RT -> bus)
+
+    def write_state(self, values: list[float | int]) -> None:
+        """Publish a full state snapshot; ``values`` in `STATE_FIELDS` order."""
+        self._write(OFF_STATE_SEQ, STATE, OFF_STATE, *values)
+
+    def read_state(self) -> dict[str, float | int]:
+        """A consistent copy of the state, by field name."""
+        return dict(zip(STATE_FIELDS, self._read(OFF_STATE_SEQ, STATE, OFF_STATE), strict=True))
+
+    # ------------------------------------------------------------------ messages (RT -> bus)
+
+    def push_message(self, kind: int, text: str | bytes) -> None:
+        """RT side: add a line to the message ring (the oldest is overwritten when it is full)."""
+        raw = text.encode("utf-8", "replace") if isinstance(text, str) else text
+        raw = raw[:MSG_TEXT]
+        head = self._word(OFF_MSG_HEAD)
+        MSG_SLOT.pack_into(self.buf, OFF_MSG + (head % MSG_SLOTS) * MSG_SLOT.size, kind, len(raw), raw)
+        self._set_word(OFF_MSG_HEAD, head + 1)
+
+    def pop_messages(self) -> tuple[list[tuple[int, str]], int]:
+        """Bus side: new lines as (kind, text), and how many were overwritten before we read them."""
+        head = self._word(OFF_MSG_HEAD)
+        lost = max(0, head - self._msg_tail - MSG_SLOTS)
+        self._msg_tail += lost
+        out = []
+        while self._msg_tail < head:
+            kind, n, raw = MSG_SLOT.unpack_from(
+                self.buf, OFF_MSG + (self._msg_tail % MSG_SLOTS) * MSG_SLOT.size)
+            out.append((kind, raw[:n].decode("utf-8", "replace")))
+            self._msg_tail += 1
+        return out, lost

@@ -1,0 +1,238 @@
+"""Board backends and the cycle, driven step by step with an injected clock.
+
+The PenguinPi backend runs real pyserial on a pseudo-terminal; the test plays the
+board's end byte by byte. The cycle (`rt.Cycle`) runs on real shared memory.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tty
+
+import msgspec
+import pytest
+from icefloe.services.hwbridge import control
+from icefloe.services.hwbridge.__main__ import check_config
+from icefloe.services.hwbridge.board import Board
+from icefloe.services.hwbridge.penguinpi import PenguinPiBoard, board_text
+from icefloe.services.hwbridge.rt import Cycle
+from icefloe.services.hwbridge.shm import IO_LED, IO_TEXT, MSG_WARNING, Shared
+
+from icefloe.config import RobotConfig
+from icefloe.errors import BoardError, ConfigError
+from icefloe.wire import penguinpi as ppi
+
+MS = 1_000_000
+
+
+class BoardEnd:
+    """The board's side of a pseudo-terminal whose other end the backend opens."""
+
+    def __init__(self, tmp_path) -> None:
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(self.master, False)
+        self.path = tmp_path / "tty"
+        self.path.symlink_to(os.ttyname(slave))
+        self._slave = slave
+
+    def read(self) -> bytes:
+        try:
+            return os.read(self.master, 4096)
+        except BlockingIOError:
+            return b""
+
+    def write(self, data: bytes) -> None:
+        os.write(self.master, data)
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self._slave)
+
+
+@pytest.fixture
+def penguin(tmp_path):
+    end = BoardEnd(tmp_path)
+    config = msgspec.convert({"board": {"serial_port": str(end.path)}}, RobotConfig)
+    said: list[tuple[int, str]] = []
+    board = PenguinPiBoard(config, lambda kind, text: said.append((kind, text)))
+    board.open(0)
+    assert end.read() == ppi.encode_frame(ppi.Address.AD_MULTI, ppi.MultiOp.MULTI_ALL_STOP)
+    yield board, end, said
+    board.close()
+    end.close()
+
+
+def multi_reply(left: int, right: int) -> bytes:
+    return ppi.encode_frame(ppi.Address.AD_MULTI, ppi.MultiOp.MULTI_SET_VEL_GET_ENC,
+                            ppi.pack_multi_get(left, right))
+
+
+def test_penguinpi_exchange_units_order_and_matching(penguin) -> None:
+    board, end, _ = penguin
+    board.cycle(1 * MS, 0.15, -0.05, stopped=False)
+    sent = end.read()
+    frame = ppi.Parser().feed(sent)[0]
+    assert (frame.address, frame.opcode) == (ppi.Address.AD_MULTI, ppi.MultiOp.MULTI_SET_VEL_GET_ENC)
+    left, right = ppi.unpack_multi_set(frame.payload)  # right-first on the wire
+    assert (left, right) == (30, -10)                  # dithered demands: 5 x counts per 20 ms
+    board.cycle(2 * MS, 0.15, -0.05, stopped=False)
+    assert end.read() == b"", "nothing new while a request is in flight"
+    end.write(multi_reply(32760, -32760))              # reply is left-first
+    board.cycle(3 * MS, 0.15, -0.05, stopped=False)
+    assert (board.ticks_left, board.ticks_right, board.exchanges) == (0, 0, 1)
+    # Between wheel exchanges come the slow polls (battery first); answer like the firmware.
+    board.cycle(4 * MS, 0.15, -0.05, stopped=False)
+    poll = ppi.Parser().feed(end.read())[0]
+    assert (poll.address, poll.opcode) == (ppi.Address.AD_ADC_V, ppi.AdcOp.ADC_GET_SMOOTH)
+    end.write(ppi.encode_frame(poll.address, poll.opcode, ppi.pack_float(7400.0)))
+    # Counts unwrap across the 16-bit wrap.
+    board.cycle(6 * MS, 0.15, -0.05, stopped=False)
+    assert board.battery_voltage == pytest.approx(7.4)
+    assert ppi.Parser().feed(end.read())[0].address == ppi.Address.AD_MULTI
+    end.write(multi_reply(-32766, 32766))
+    board.cycle(7 * MS, 0.15, -0.05, stopped=False)
+    assert (board.ticks_left, board.ticks_right) == (10, -10)  # forward and back across the wrap
+
+
+def test_penguinpi_resynchronises_within_one_frame(penguin) -> None:
+    board, end, said = penguin
+    board.cycle(1 * MS, 0.1, 0.1, stopped=False)
+    end.read()
+    bad = bytearray(multi_reply(1, 1))
+    bad[-1] ^= 0xFF                                    # corrupted CRC
+    lost = multi_reply(2, 2)[:-3]                      # a frame that lost its tail
+    # garbage, a text line, a corrupted frame, a truncated frame, then the good reply
+    end.write(b"\xff\xfe" + b"ERR: CRC failed\n" + bytes(bad) + lost + multi_reply(40, 41))
+    board.cycle(2 * MS, 0.1, 0.1, stopped=False)
+    assert board.exchanges == 1 and (board.ticks_left, board.ticks_right) == (0, 0)
+    assert board.crc_errors >= 1 and board.garbage_bytes >= 2 and board.board_errors == 1
+    assert (MSG_WARNING, "PenguinPi: ERR: CRC failed") in said
+    # A late duplicate reply matches nothing: counted, not used.
+    end.write(multi_reply(99, 99))
+    board.cycle(3 * MS, 0.1, 0.1, stopped=False)
+    assert board.unmatched == 1 and board.ticks_left == 0
+    # No reply at all: a timeout after 20 ms, then the next exchange goes out.
+    board.cycle(10 * MS, 0.1, 0.1, stopped=False)
+    end.read()
+    board.cycle(40 * MS, 0.1, 0.1, stopped=False)
+    assert board.timeouts == 1
+    board.cycle(41 * MS, 0.1, 0.1, stopped=False)
+    assert ppi.Parser().feed(end.read())[0].opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC
+
+
+def test_penguinpi_io_commands_and_stop(penguin) -> None:
+    board, end, _ = penguin
+    board.io(IO_LED, 2, 100, b"")
+    board.io(IO_TEXT, 0, 0, b"hi\x11\x00\n")
+    board.cycle(1 * MS, 0.0, 0.0, stopped=True)       # the wheel exchange goes first
+    frames = ppi.Parser().feed(end.read())
+    assert ppi.unpack_multi_set(frames[0].payload) == (0, 0)
+    end.write(multi_reply(0, 0))
+    board.cycle(2 * MS, 0.0, 0.0, stopped=True)
+    assert end.read() == ppi.encode_frame(ppi.Address.AD_LED_2, ppi.LedOp.LED_SET_COUNT, bytes([100]))
+    board.cycle(3 * MS, 0.0, 0.0, stopped=True)
+    assert end.read() == b"hi\n"                      # 0x11 would start a frame: removed
+    assert board_text(b"a\x0cb\xe9") == b"a\x0cb"
+    board.stop()
+    assert end.read() == ppi.encode_frame(ppi.Address.AD_MULTI, ppi.MultiOp.MULTI_ALL_STOP)
+
+
+def test_penguinpi_link_lost_raises_board_error(penguin) -> None:
+    board, end, _ = penguin
+    end.close()
+    with pytest.raises(BoardError, match="tty"):
+        for t in range(1, 5):
+            board.cycle(t * MS, 0.1, 0.1, stopped=False)
+    end.master = os.open("/dev/null", os.O_RDONLY)   # so the fixture's close has fds to close
+    end._slave = os.open("/dev/null", os.O_RDONLY)
+
+
+class FakeBoard(Board):
+    """A board that records what the cycle asks of it (the cycle's logic is under test)."""
+
+    name = "fake"
+
+    def __init__(self, config: RobotConfig) -> None:
+        super().__init__(config, lambda kind, text: None)
+        self.calls: list[tuple[int, float, float, bool]] = []
+        self.fail_next = False
+
+    def open(self, now_ns: int) -> None:
+        pass
+
+    def cycle(self, now_ns: int, left: float, right: float, stopped: bool) -> None:
+        if self.fail_next:
+            self.fail_next = False
+            raise BoardError("fake: gone")
+        self.calls.append((now_ns, left, right, stopped))
+
+
+@pytest.fixture
+def shared():
+    s = Shared.create()
+    yield s
+    s.close()
+
+
+def test_cycle_deadman_stop_latch_limits_and_ramp(shared) -> None:
+    config = msgspec.convert({"hwbridge": {"max_accel": 2.0, "max_wheel_speed": 0.5}}, RobotConfig)
+    board = FakeBoard(config)
+    cycle = Cycle(config, shared, board)
+    t = 10**9
+    cycle.step(t)
+    assert board.calls[-1][3] and cycle.stop_reason == control.STOP_NEVER_COMMANDED
+    shared.write_commands(2.0, 0.2, t, False, 0)      # 2.0 m/s: over the limit
+    cycle._last_dt = 0.001
+    for i in range(1, 101):
+        cycle.step(t + i * MS)
+    _, left, right, stopped = board.calls[-1]
+    assert not stopped
+    assert left == pytest.approx(0.2) and right == pytest.approx(0.2)  # 2 m/s^2 for 0.1 s
+    for i in range(101, 300):
+        cycle.step(t + i * MS)
+    assert board.calls[-1][1:3] == pytest.approx((0.5, 0.2))  # clamped to max_wheel_speed
+    # Deadman: still driving at exactly 0.5 s after the command, stopped one cycle later.
+    cycle.step(t + 500 * MS)
+    assert not board.calls[-1][3]
+    cycle.step(t + 500 * MS + 1)
+    assert board.calls[-1][3] and cycle.stop_reason == control.STOP_DEADMAN
+    assert cycle.target_left == 0.0
+    # The stop latch holds even with a fresh command time, until the bus side clears it.
+    shared.write_commands(0.3, 0.3, t + 600 * MS, True, 0)
+    cycle.step(t + 601 * MS)
+    assert cycle.stop_reason == control.STOP_LATCHED
+    state = shared.read_state()
+    assert state["stop_reason"] == control.STOP_LATCHED and state["target_left"] == 0.0
+
+
+def test_cycle_survives_a_lost_link_and_retries(shared) -> None:
+    config = RobotConfig()
+    board = FakeBoard(config)
+    cycle = Cycle(config, shared, board)
+    cycle.step(MS)
+    assert cycle.link_up
+    board.fail_next = True
+    cycle.step(2 * MS)
+    assert not cycle.link_up
+    cycle.step(3 * MS)                                 # no retry before a second has passed
+    assert not cycle.link_up
+    cycle.step(2 * MS + 10**9)
+    assert cycle.link_up
+    lines, _ = shared.pop_messages()
+    assert any("board link lost: fake: gone" in text for _, text in lines)
+
+
+@pytest.mark.parametrize(("table", "named"), [
+    ({"hwbridge": {"rate_hz": 0.0}}, "hwbridge.rate_hz: must be a positive number, got 0.0"),
+    ({"hwbridge": {"deadman_s": -1.0}}, "hwbridge.deadman_s"),
+    ({"hwbridge": {"rate_hz": 50_000.0}}, "hwbridge.rate_hz: at most 10000 Hz"),
+    ({"hwbridge": {"wheels_rate_hz": -1.0}}, "hwbridge.wheels_rate_hz"),
+    ({"geometry": {"ticks_per_rev": 0}}, "geometry.ticks_per_rev"),
+])
+def test_bad_hwbridge_config_is_refused_naming_the_key(table, named) -> None:
+    config = msgspec.convert({**table, "source": "robot.toml"}, RobotConfig)
+    with pytest.raises(ConfigError, match=re.escape(f"robot.toml: {named}")):
+        check_config(config)
+    check_config(RobotConfig())

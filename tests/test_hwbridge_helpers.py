@@ -1,0 +1,86 @@
+"""Helpers shared by the hwbridge integration tests (no tests here: real sim + hwbridge processes)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import time
+
+from conftest import Robot, wait_for
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+
+from icefloe.runtime import Node
+
+
+async def sim_state(node: Node, action: str = "read", **fields: object) -> m.SimState:
+    return await node.query(keys.SIM_CONTROL, m.SimControl(action=action, **fields), timeout=5.0)
+
+
+async def start_stack(robot: Robot, node: Node):
+    """Start the simulator and hwbridge; return them once hw/wheels flows."""
+    sim = robot.start("sim")
+    hw = robot.start("hwbridge")
+    wheels = node.subscribe(keys.WHEELS)
+    got: list[m.Wheels] = []
+
+    async def first() -> None:
+        got.append(await anext(wheels))
+
+    task = asyncio.ensure_future(first())
+    try:
+        await wait_for(lambda: task.done() or not hw.alive() or not sim.alive(), timeout=20)
+    finally:
+        task.cancel()
+    assert hw.alive(), hw.output
+    assert sim.alive(), sim.output
+    wheels.close()
+    return sim, hw
+
+
+@contextlib.asynccontextmanager
+async def driving(node: Node, v: float, w: float = 0.0, rate_hz: float = 20.0):
+    """Publish ``cmd/twist`` at ``rate_hz`` inside the block; yields a dict with the last send time."""
+    pub = node.publisher(keys.TWIST)
+    sent = {"last": 0.0, "last_wall_ns": 0, "count": 0}
+
+    async def loop() -> None:
+        while True:
+            pub.put(m.Twist(v=v, w=w))
+            sent["last"] = time.monotonic()
+            sent["last_wall_ns"] = time.time_ns()
+            sent["count"] += 1
+            await asyncio.sleep(1.0 / rate_hz)
+
+    task = asyncio.ensure_future(loop())
+    try:
+        yield sent
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
+async def measured_forward_speed(node: Node, seconds: float) -> float:
+    """True forward speed of the simulated robot over ``seconds`` (from sim/control reads), m/s."""
+    a = await sim_state(node)
+    t0 = time.monotonic()
+    await asyncio.sleep(seconds)
+    b = await sim_state(node)
+    dt = b.sim_time - a.sim_time
+    assert dt > 0.5 * (time.monotonic() - t0), "the simulation clock is not keeping up"
+    heading = (a.theta + b.theta) / 2
+    return ((b.x - a.x) * math.cos(heading) + (b.y - a.y) * math.sin(heading)) / dt
+
+
+async def deadman_delay(wheels, last_command_ns: int) -> float:
+    """Seconds from the last command to the first ``hw/wheels`` sample with zero targets.
+
+    ``wheels`` is a FIFO subscription to hw/wheels; ``last_command_ns`` the wall-clock
+    time the last command was published.
+    """
+    async for w in wheels:
+        if w.stamp > last_command_ns and w.target_left == 0.0 and w.target_right == 0.0:
+            return (w.stamp - last_command_ns) * 1e-9
+    raise AssertionError("hw/wheels ended")

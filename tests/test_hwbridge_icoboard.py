@@ -1,0 +1,180 @@
+"""hwbridge against the simulated icoBoard (real sim and hwbridge processes, real Zenoh)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+
+import pytest
+from conftest import wait_for
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+from icefloe.services.hwbridge.shm import Shared, block_name
+from test_hwbridge_helpers import (
+    deadman_delay,
+    driving,
+    measured_forward_speed,
+    sim_state,
+    start_stack,
+)
+
+from icefloe.wire.icoboard import Op
+
+pytestmark = pytest.mark.slow
+
+ICO_V2 = '[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 2\n'
+ICO_V1 = '[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 1\n'
+
+
+@pytest.mark.parametrize("board", [ICO_V2, ICO_V1], ids=["v2", "v1"])
+async def test_twist_drives_at_the_commanded_speed_then_deadman_stops(make_robot, board) -> None:
+    robot = make_robot(board + "[hwbridge]\nwheels_rate_hz = 0\n")
+    async with robot.node() as node:
+        _sim, hw = await start_stack(robot, node)
+        wheels = node.subscribe(keys.WHEELS, latest=False, maxsize=10_000)
+        async with driving(node, v=0.15) as sent:
+            await asyncio.sleep(2.0)                     # ramp (2 m/s^2) and PI settle
+            speed = await measured_forward_speed(node, 1.5)
+        last_command = sent["last_wall_ns"]
+        assert speed == pytest.approx(0.15, rel=0.05), hw.output
+
+        # Deadman: the first cycle with zero targets comes 0.5 s (+ a cycle) after the last
+        # command reached hwbridge, never before.
+        delay = await asyncio.wait_for(deadman_delay(wheels, last_command), 3.0)
+        # Exactly 0.5 s + one cycle after the command reached hwbridge (test_hwbridge_backends);
+        # here measured from its publication, so bus delivery on a busy machine adds to it.
+        assert 0.5 <= delay <= 0.5 + 0.001 + 0.1, f"deadman fired {delay:.3f} s after the last command"
+        await asyncio.sleep(0.2)
+        state = await sim_state(node)
+        assert (state.duty_left, state.duty_right) == (0.0, 0.0)
+
+
+async def test_sigterm_sends_exit_and_leaves_pwm_at_zero(make_robot) -> None:
+    robot = make_robot(ICO_V2)
+    async with robot.node() as node:
+        _sim, hw = await start_stack(robot, node)
+        async with driving(node, v=0.2, rate_hz=50):
+            await wait_for(lambda: True, timeout=0.1)
+            await asyncio.sleep(1.0)
+            before = await sim_state(node)
+            assert before.duty_left > 0 and before.duty_right > 0
+            assert hw.stop(signal.SIGTERM) == 0
+            after = await sim_state(node)  # still commanding: only EXIT can have stopped it
+        assert (after.duty_left, after.duty_right) == (0.0, 0.0)
+        assert after.last_frame[0] == Op.EXIT
+        assert after.watchdog_trips == before.watchdog_trips
+        assert "board link up" in hw.output
+
+
+async def test_sigkill_lets_the_v2_watchdog_stop_the_wheels(make_robot) -> None:
+    robot = make_robot(ICO_V2)
+    async with robot.node() as node:
+        _sim, hw = await start_stack(robot, node)
+        async with driving(node, v=0.2, rate_hz=50):
+            await asyncio.sleep(1.0)
+            before = await sim_state(node)
+            assert before.duty_left > 0
+            os.killpg(hw.popen.pid, signal.SIGKILL)  # the bus process and the cycle, at once
+            killed = time.monotonic()
+            while True:
+                state = await sim_state(node)
+                if state.duty_left == 0.0 and state.duty_right == 0.0:
+                    break
+                assert time.monotonic() - killed < 1.0, "wheels still driven 1 s after SIGKILL"
+            hw.popen.wait()
+        Shared.create(block_name(robot.name)).close()  # remove the block the kill left behind
+        assert state.watchdog_trips == before.watchdog_trips + 1
+        assert state.last_frame[0] == Op.TRANSMIT  # nobody said EXIT: the watchdog did it
+        # The trip happened 50 ms (+ one 1 ms tick) after the last valid frame, in sim time.
+        assert state.sim_time - before.sim_time >= 0.05
+
+
+async def test_mismatched_board_refuses_to_run(make_robot) -> None:
+    robot = make_robot(ICO_V2)
+    async with robot.node() as node:
+        sim = robot.start("sim")
+        await wait_for(lambda: os.path.exists(robot.config.board.sim_socket), timeout=15)
+        await sim_state(node, "force_descriptor", sensors=3, actuators=2)
+        hw = robot.start("hwbridge")
+        await wait_for(lambda: not hw.alive(), timeout=20)
+        assert hw.popen.returncode == 3  # a failure a supervisor (icefloe up, systemd) sees
+        assert "refusing to run: icoBoard START descriptor does not match the config" in hw.output
+        assert "sensors M = 3 (config says 2)" in hw.output
+        state = await sim_state(node)
+        assert (state.duty_left, state.duty_right) == (0.0, 0.0)
+        assert sim.alive()
+
+
+async def test_stop_latches_and_motion_and_halt(make_robot) -> None:
+    robot = make_robot(ICO_V2)
+    async with robot.node() as node:
+        await start_stack(robot, node)
+        done = await node.query(keys.MOTION, m.Motion(left=0.1, right=0.1, duration=0.6, accel=0.2),
+                                timeout=5.0)
+        assert done.completed
+        start = await sim_state(node)
+        # A motion cut short by cmd/stop answers completed=False; the stop latches.
+        task = asyncio.ensure_future(node.query(keys.MOTION, m.Motion(left=0.1, right=0.1,
+                                                                      duration=5.0), timeout=8.0))
+        await asyncio.sleep(0.5)
+        node.publisher(keys.STOP).put(m.Stop())
+        done = await task
+        assert not done.completed and "cmd/stop" in done.reason
+        halted = await node.query(keys.HALT, m.Stop(), timeout=5.0)
+        assert abs(halted.speed_left) < 0.005 and abs(halted.speed_right) < 0.005
+        end = await sim_state(node)
+        assert end.x > start.x + 0.03, "the motions moved the robot forward"
+        # Bad requests get one clear error and change nothing.
+        with pytest.raises(Exception, match="accel"):
+            await node.query(keys.MOTION, m.Motion(left=0.1, right=0.1, duration=1.0, accel=0.6))
+
+
+async def test_a_dead_cycle_is_restarted_and_clamps_are_logged(make_robot) -> None:
+    robot = make_robot(ICO_V2)
+    async with robot.node() as node:
+        logs = node.subscribe(keys.LOG, latest=False, maxsize=1000)
+        _sim, hw = await start_stack(robot, node)
+        shared = Shared.attach(block_name(robot.name))  # the cycle writes its pid there
+        rt_pid = shared.read_state()["pid"]
+        shared.close()
+        assert rt_pid not in (0, hw.popen.pid)
+        os.kill(rt_pid, signal.SIGKILL)                  # the real-time process only
+        texts: list[str] = []
+
+        async def until(needle: str) -> None:
+            async for line in logs:
+                texts.append(line.text)
+                if needle in line.text:
+                    return
+
+        await asyncio.wait_for(until("real-time process exited with status -9; restarting"), 10)
+        await asyncio.wait_for(until("board link up"), 10)
+        node.publisher(keys.TWIST).put(m.Twist(v=3.0, w=0.0))
+        await asyncio.wait_for(until("cmd/twist: clamped to 0.5 m/s per wheel"), 10)
+        assert hw.alive()
+
+
+async def test_corrupt_frames_are_counted_not_used(make_robot) -> None:
+    robot = make_robot(ICO_V2)
+    async with robot.node() as node:
+        _sim, hw = await start_stack(robot, node)
+        loops = node.subscribe(keys.LOOP)
+        async with driving(node, v=0.1, rate_hz=50):
+            await asyncio.sleep(1.0)
+            before = await anext(loops)
+            await sim_state(node, "inject_noise", count=20, direction="rx")   # requests
+            await asyncio.sleep(0.3)
+            await sim_state(node, "inject_noise", count=20, direction="tx")   # replies
+            await asyncio.sleep(2.0)
+            await anext(loops)
+            after = await anext(loops)
+            state = await sim_state(node)
+        # A flipped bit fails the CRC. (On a loaded machine some replies come after their
+        # cycle gave up on them; those are drained unread and counted as late instead.)
+        assert after.crc_errors >= before.crc_errors + 5, after
+        assert after.board_errors >= before.board_errors + 10      # REJECTED by the board
+        assert after.link_errors >= before.link_errors + 20
+        assert after.link_rate > 100 and hw.alive()                # exchanges go on
+        assert state.duty_left > 0                                 # still driving
