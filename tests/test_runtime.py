@@ -125,3 +125,18 @@ async def test_no_router_fails_fast_when_asked_to(make_robot) -> None:
     with pytest.raises(NotReachable, match=r"cannot reach a Zenoh router at tcp/127\.0\.0\.1:"):
         async with Node("cli", cfg, retry=False):
             pass
+
+
+async def test_coalesced_subscription_delivers_everything_in_order(robot: Robot) -> None:
+    async with robot.node("a") as a, robot.node("b") as b:
+        sub = b.subscribe(keys.WHEELS, latest=False, maxsize=1000, coalesce=0.01)
+        pub = a.publisher(keys.WHEELS)
+        await settle()
+        for i in range(300):
+            pub.put(m.Wheels(stamp=i, ticks_left=i, ticks_right=-i, speed_left=0.0, speed_right=0.0))
+        got = [(await next_of(sub)).stamp for _ in range(300)]
+        assert got == list(range(300))
+        a.session.put(a.key(keys.WHEELS), b'{"stamp": "late"}', encoding=codec.JSON)
+        pub.put(m.Wheels(stamp=300, ticks_left=0, ticks_right=0, speed_left=0.0, speed_right=0.0))
+        assert (await next_of(sub)).stamp == 300  # the bad one was dropped, the reader carried on
+        assert sub.rejected == 1

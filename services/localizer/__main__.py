@@ -1,0 +1,63 @@
+"""localizer: an EKF over (x, y, theta) from ``odom/pose`` and ``camera/landmarks`` to ``loc/pose``.
+
+* Motion: the increment between consecutive ``odom/pose`` messages (in the
+  robot's frame, so the odometry frame's origin does not matter). An
+  increment no robot can make (odometry reset or restarted, timestamp going
+  backwards) is skipped with one log line.
+* Measurements: each landmark's range and bearing against the map
+  ``localizer.world``; outliers fail a Mahalanobis gate, unknown ids are
+  ignored; both are counted and logged (at most one line a second).
+* Initial pose: ``localizer.init = "config"`` starts at ``initial_x/y/theta``
+  with ``initial_sigma_*``; ``"landmarks"`` waits for the first frame with two
+  or more known markers and solves the pose from it (`pose_from_landmarks`).
+* Publishes ``loc/pose`` after every landmark frame and at ``localizer.rate_hz``.
+
+Run: ``python -m icefloe.services.localizer --config sim``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+from icefloe.config import RobotConfig
+from icefloe.errors import ConfigError
+from icefloe.runtime import Node, run
+from icefloe.schemas import keys
+
+from .tracker import Localizer
+
+
+async def main(config: RobotConfig) -> None:
+    async with Node("localizer", config) as node:
+        try:
+            loc = Localizer(config, node.log)
+        except ConfigError as exc:  # a bad world file or noise value: say which and stop
+            node.log.error("localizer: %s", exc)
+            raise SystemExit(2) from None
+        period = 1.0 / config.localizer.rate_hz
+        pub = node.publisher(keys.LOC_POSE)
+        node.log.info("localizer: %d landmarks from %s, init %s", len(loc.ekf.landmarks),
+                      config.localizer.world, config.localizer.init)
+
+        async def odometry() -> None:
+            async for pose in node.subscribe(keys.ODOM_POSE):
+                loc.on_odometry(pose)
+
+        async def landmarks() -> None:
+            async for frame in node.subscribe(keys.LANDMARKS, latest=False, maxsize=16):
+                if loc.on_landmarks(frame):
+                    pub.put(loc.estimate())
+
+        async def steady() -> None:
+            while True:
+                await asyncio.sleep(period)
+                if loc.initialised and loc.stamp:  # nothing to say before the first input
+                    pub.put(loc.estimate())
+
+        async with asyncio.TaskGroup() as tasks:
+            for job in (odometry, landmarks, steady):
+                tasks.create_task(job())
+
+
+if __name__ == "__main__":
+    run(main)

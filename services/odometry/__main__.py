@@ -1,0 +1,138 @@
+"""odometry: dead reckoning from ``hw/wheels`` to ``odom/pose``.
+
+* Reads every ``hw/wheels`` sample (FIFO). A sample lost on the way loses no
+  motion: counts are cumulative, so the next difference covers it.
+* Integrates with the exact arc model in `model.py` (docs/odometry.md).
+* Publishes ``odom/pose`` at ``odometry.rate_hz`` (50 Hz) once a sample arrived.
+* ``odom/reset`` sets the pose (to the `PoseReset` sent, origin if empty) and
+  answers with the new `Pose`.
+* Glitches (timestamp backwards, count jumps no wheel can make: encoder reset,
+  bridge restart) are logged with what was seen, never integrated; the pose
+  stays where it was and the next sample is the new reference.
+
+Run: ``python -m icefloe.services.odometry --config sim``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from typing import ClassVar
+
+from icefloe.config import RobotConfig
+from icefloe.runtime import Node, run
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+
+from .model import Event, Geometry, Limits, Odometry, Step
+
+QUEUE = 4096
+COALESCE_S = 0.01
+"""Collect wheel samples every 10 ms instead of one callback each: at 1 kHz input that halves
+the process's CPU (bench/odometry_localizer.py)."""
+"""FIFO depth for hw/wheels: 4 s at 1 kHz. An overflow drops the oldest samples, which loses no motion."""
+
+
+def check(config: RobotConfig) -> None:
+    """Refuse a config the integration cannot work with: SystemExit naming the key."""
+    g, o = config.geometry, config.odometry
+    for key, value in (("geometry.wheel_diameter", g.wheel_diameter), ("geometry.track", g.track),
+                       ("geometry.ticks_per_rev", g.ticks_per_rev), ("odometry.rate_hz", o.rate_hz),
+                       ("odometry.max_wheel_speed", o.max_wheel_speed), ("odometry.speed_window_s", o.speed_window_s)):
+        if not value > 0:
+            raise SystemExit(f"icefloe odometry: {config.source}: {key} must be > 0, got {value}")
+
+
+def make_odometry(config: RobotConfig) -> Odometry:
+    """The pure integrator configured from the robot config."""
+    g, o = config.geometry, config.odometry
+    return Odometry(
+        Geometry(g.wheel_diameter, g.track, g.ticks_per_rev),
+        Limits(o.max_wheel_speed, o.jump_margin, o.gap_s, o.speed_window_s),
+    )
+
+
+def pose_message(odo: Odometry) -> m.Pose:
+    v, w = odo.speeds()
+    return m.Pose(stamp=odo.stamp, x=odo.x, y=odo.y, theta=odo.theta, v=v, w=w)
+
+
+class EventLog:
+    """Logs each unusual sample with what was seen: up to `burst` lines per kind per second.
+
+    A storm (say, a board that keeps resetting) becomes a few lines plus a
+    count instead of a thousand lines a second.
+    """
+
+    INTERESTING: ClassVar[dict[Event, int]] = {Event.GAP: logging.INFO, Event.BACKWARDS: logging.WARNING,
+                                               Event.JUMP: logging.WARNING, Event.BAD: logging.WARNING}
+
+    def __init__(self, log: logging.Logger, clock: Callable[[], float] = time.monotonic, burst: int = 5) -> None:
+        self._log, self._clock, self._burst = log, clock, burst
+        self._window: dict[Event, tuple[float, int]] = {}  # kind -> (window start s, lines in it)
+        self._held: dict[Event, int] = {}
+        self.counts: dict[Event, int] = {e: 0 for e in Event}
+        """Samples seen per kind, since start."""
+
+    def note(self, step: Step) -> None:
+        self.counts[step.event] += 1
+        level = self.INTERESTING.get(step.event)
+        if level is None:
+            return
+        now = self._clock()
+        start, lines = self._window.get(step.event, (-1e9, 0))
+        if now - start >= 1.0:
+            start, lines = now, 0
+        if lines >= self._burst:
+            self._held[step.event] = self._held.get(step.event, 0) + 1
+            return
+        held = self._held.pop(step.event, 0)
+        more = f" (and {held} more like it not shown)" if held else ""
+        self._log.log(level, "hw/wheels: %s%s", step.describe(), more)
+        self._window[step.event] = (start, lines + 1)
+
+
+async def main(config: RobotConfig) -> None:
+    check(config)
+    odo = make_odometry(config)
+    period = 1.0 / config.odometry.rate_hz
+    async with Node("odometry", config) as node:
+        events = EventLog(node.log)
+        pose_pub = node.publisher(keys.ODOM_POSE)
+
+        async def reset(request: m.PoseReset) -> m.Pose:
+            odo.reset(request.x, request.y, request.theta)
+            node.log.info("pose reset to x=%.3f y=%.3f theta=%.3f", odo.x, odo.y, odo.theta)
+            if not odo.stamp:  # no sample yet: nothing on odom/pose, but the answer needs a time
+                return m.Pose(stamp=time.time_ns(), x=odo.x, y=odo.y, theta=odo.theta)
+            pose = pose_message(odo)
+            pose_pub.put(pose)
+            return pose
+
+        node.queryable(keys.ODOM_RESET, reset)
+
+        async def integrate() -> None:
+            async for wheels in node.subscribe(keys.WHEELS, latest=False, maxsize=QUEUE, coalesce=COALESCE_S):
+                events.note(odo.update(wheels.stamp, wheels.ticks_left, wheels.ticks_right))
+
+        async def publish() -> None:
+            # Absolute deadlines: the rate does not drift with the time a put takes.
+            loop = asyncio.get_running_loop()
+            deadline = loop.time()
+            while True:
+                deadline = max(deadline + period, loop.time() - period)  # late: skip, don't burst
+                await asyncio.sleep(max(0.0, deadline - loop.time()))
+                if odo.stamp:
+                    pose_pub.put(pose_message(odo))
+
+        node.log.info("odometry: k=%.4e m/count, track %.3f m, publishing odom/pose at %.0f Hz",
+                      odo.geometry.metres_per_tick, odo.geometry.track, config.odometry.rate_hz)
+        async with asyncio.TaskGroup() as tasks:
+            tasks.create_task(integrate())
+            tasks.create_task(publish())
+
+
+if __name__ == "__main__":
+    run(main)

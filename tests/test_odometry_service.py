@@ -1,0 +1,139 @@
+"""The odometry service as a real process: hw/wheels in (published by this test), odom/pose out."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import signal
+import time
+
+from conftest import wait_for
+
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+from icefloe.services.odometry.model import Geometry
+
+K = Geometry(0.065, 0.156, 384).metres_per_tick
+MS = 1_000_000
+
+
+class Feed:
+    """Publishes hw/wheels like hwbridge does and collects odom/pose and log lines."""
+
+    def __init__(self, node) -> None:
+        self.pub = node.publisher(keys.WHEELS)
+        self.poses: list[m.Pose] = []
+        self.logs: list[m.Log] = []
+        self.stamp = time.time_ns()
+        self.left = self.right = 0
+
+    def send(self, d_left: int, d_right: int, dt_ns: int = 10 * MS) -> None:
+        self.stamp += dt_ns
+        self.left += d_left
+        self.right += d_right
+        self.pub.put(m.Wheels(stamp=self.stamp, ticks_left=self.left, ticks_right=self.right,
+                              speed_left=0.0, speed_right=0.0))
+
+    def pose_after(self, stamp: int) -> m.Pose | None:
+        """The latest odom/pose covering the sample with this stamp."""
+        for pose in reversed(self.poses):
+            if pose.stamp >= stamp:
+                return pose
+        return None
+
+
+async def collect(sub, into: list) -> None:
+    async for msg in sub:
+        into.append(msg)
+
+
+async def settle(feed: Feed) -> m.Pose:
+    """Wait until odom/pose reflects the last sample sent."""
+    await wait_for(lambda: feed.pose_after(feed.stamp) is not None)
+    pose = feed.pose_after(feed.stamp)
+    assert pose is not None
+    return pose
+
+
+async def test_odometry_process_integrates_resets_and_survives_bad_input(robot) -> None:
+    proc = robot.start("odometry")
+    async with robot.node("tester") as node:
+        feed = Feed(node)
+        collectors = [asyncio.create_task(collect(node.subscribe(keys.ODOM_POSE, latest=False), feed.poses)),
+                      asyncio.create_task(collect(node.subscribe(keys.LOG, latest=False), feed.logs))]
+
+        # The service is up once it answers odom/reset.
+        async def answered() -> bool:
+            try:
+                await node.query(keys.ODOM_RESET, m.PoseReset(), timeout=0.5)
+                return True
+            except Exception:
+                return False
+
+        deadline = time.monotonic() + 30
+        while not await answered():
+            assert proc.alive(), proc.output
+            assert time.monotonic() < deadline, "odometry never answered odom/reset"
+
+        # Straight line: 200 samples of 4 counts per wheel per 10 ms (0.21 m/s).
+        feed.send(0, 0)
+        for _ in range(200):
+            feed.send(4, 4)
+            await asyncio.sleep(0.001)
+        pose = await settle(feed)
+        assert abs(pose.x - 800 * K) < 1e-9 and pose.y == 0.0 and pose.theta == 0.0
+        assert abs(pose.v - 4 * K / 0.01) < 0.01
+
+        # Reset to a given pose answers with it, and motion continues from there.
+        answer = await node.query(keys.ODOM_RESET, m.PoseReset(x=1.0, y=-1.0, theta=math.pi / 2))
+        assert (answer.x, answer.y, answer.theta) == (1.0, -1.0, math.pi / 2)
+        feed.send(10, 10)
+        pose = await settle(feed)
+        assert abs(pose.y - (-1.0 + 10 * K)) < 1e-9 and abs(pose.x - 1.0) < 1e-9
+
+        # Bad input: each leaves the pose where it was, is logged with what happened, and the
+        # service goes on integrating.
+        before = (pose.x, pose.y, pose.theta)
+        feed.send(3, 3, dt_ns=-50 * MS)  # timestamp backwards
+        feed.send(20000, -20000)  # huge jump (an encoder reset looks the same)
+        feed.send(-feed.left, -feed.right)  # counts back to 0: the bridge restarted
+        feed.send(0, 0, dt_ns=1000 * MS)  # a 1 s gap without motion
+        pose = await settle(feed)
+        assert (pose.x, pose.y, pose.theta) == before
+        await wait_for(lambda: sum("hw/wheels:" in log.text for log in feed.logs) >= 3)
+        texts = "\n".join(log.text for log in feed.logs)
+        assert "timestamp went backwards" in texts
+        assert "dL=20000 dR=-20000" in texts
+        assert "count jump too large" in texts
+        assert "gap" in texts and "dt=1.0000" in texts
+
+        # A payload that does not decode is dropped with a message naming the field.
+        node.session.put(node.key(keys.WHEELS), b'{"stamp": 1, "ticks_left": "many"}',
+                         encoding="application/json")
+        await wait_for(lambda: any("ticks_left" in log.text for log in feed.logs))
+        feed.send(6, 6)
+        pose = await settle(feed)
+        assert abs(pose.y - (before[1] + 6 * K)) < 1e-9
+        assert proc.alive()
+
+        # A bad reset request gets an error answer naming the field; the service stays up.
+        bad_reply = await asyncio.to_thread(
+            lambda: list(node.session.get(node.key(keys.ODOM_RESET), payload=b'{"x": "far"}',
+                                          encoding="application/json", timeout=2.0)))
+        assert bad_reply and bad_reply[0].err is not None
+        assert "x" in bad_reply[0].err.payload.to_string()
+        assert proc.alive()
+        for task in collectors:
+            task.cancel()
+    assert proc.stop(signal.SIGINT) == 0, proc.output
+
+
+async def test_odometry_refuses_a_config_it_cannot_use(make_robot) -> None:
+    robot = make_robot("[odometry]\nrate_hz = 0.0\n")
+    proc = robot.start("odometry")
+    deadline = time.monotonic() + 30
+    while proc.alive():
+        assert time.monotonic() < deadline, proc.output
+        await asyncio.sleep(0.1)
+    assert proc.popen.returncode != 0
+    assert "odometry.rate_hz must be > 0, got 0.0" in proc.output
