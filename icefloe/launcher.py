@@ -28,6 +28,16 @@ MAX_BACKOFF = 30.0
 HEALTHY_AFTER = 60.0
 
 
+def _die_with_parent() -> None:
+    """In the child, before exec: on Linux, get SIGINT when the launcher dies, however it dies,
+    so a killed `icefloe up` leaves no service behind (and hwbridge still stops the wheels)."""
+    if sys.platform == "linux":
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGINT)
+
+
 def available(service: str) -> bool:
     """Is there a ``services/<service>`` package to run?"""
     try:
@@ -72,6 +82,7 @@ class Launcher:
         child.process = await asyncio.create_subprocess_exec(
             *child.argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
             env=env, start_new_session=True,  # our own Ctrl-C handling decides the order
+            preexec_fn=_die_with_parent,
         )
         child.started = time.monotonic()
         assert child.process.stdout is not None

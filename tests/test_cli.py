@@ -123,6 +123,28 @@ def test_up_runs_restarts_and_stops_everything(tmp_path: Path) -> None:
         out.close()
 
 
+def test_services_stop_when_up_is_killed(tmp_path: Path) -> None:
+    from conftest import free_port
+
+    port = free_port()
+    cfg = tmp_path / "killed.toml"
+    cfg.write_text(
+        f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "killed{port}"\nservices = ["info"]\n'
+        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
+    )
+    robot = Robot.__new__(Robot)
+    robot.config_path = cfg
+    up = subprocess.Popen([*ICEFLOE, "up", str(cfg), "--no-viz"], stdout=subprocess.DEVNULL,
+                          stderr=subprocess.DEVNULL, cwd=ROOT)
+    wait_alive(robot, "info")
+    up.kill()  # SIGKILL: no chance to clean up
+    up.wait()
+    deadline = time.monotonic() + 10
+    while processes_naming(str(cfg)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert processes_naming(str(cfg)) == []
+
+
 def test_schemas_check_passes_on_the_checked_in_files() -> None:
     res = subprocess.run([*ICEFLOE, "schemas", "--check"], capture_output=True, text=True, timeout=30)
     assert res.returncode == 0, res.stdout
