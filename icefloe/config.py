@@ -99,6 +99,8 @@ class Camera(Section):
     image_height: int = 240
     jpeg_quality: int = 70
     dictionary: str = "DICT_4X4_50"
+    marker_size: float = 0.12
+    """Printed side of a marker's black square, m, for ids the world map does not list."""
     calibration: str = ""
     """Calibration file (OpenCV YAML/JSON with camera_matrix, dist_coeffs); "" = nominal."""
     focal_px: float = 500.0

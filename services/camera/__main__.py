@@ -1,0 +1,177 @@
+"""camera: frames in, ArUco landmarks and JPEG images out.
+
+* A capture thread reads frames from the source of ``camera.source`` (see
+  sources.py) into a one-frame slot: the **latest frame wins**. When detection
+  falls behind, the frames it never saw are dropped and counted, never queued.
+* Detection runs on every frame it takes, whatever the image rate, and publishes
+  ``camera/landmarks`` stamped with the frame's capture time.
+* ``camera/image``: a smaller JPEG at ``camera.image_rate_hz`` (the Wi-Fi is shared
+  by a class); ``camera/snapshot``: one full-resolution JPEG of the latest frame.
+* A missing or failing camera, or a bad frame, is logged and retried: the service
+  never dies for it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+import time
+
+import cv2
+import numpy as np
+
+from icefloe.config import RobotConfig
+from icefloe.errors import ConfigError
+from icefloe.runtime import Node, run
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+from icefloe.worldmap import load_world
+
+from .detection import BadFrame, Detector, check_frame
+from .geometry import Intrinsics, Mount
+from .sources import SimSource, Source, SourceError, open_source
+
+RETRY_S = 2.0
+REPORT_S = 10.0
+
+
+class LatestFrame:
+    """A one-frame slot between the capture thread and detection; counts what was overwritten."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._frame: tuple[int, np.ndarray] | None = None
+        self.latest: tuple[int, np.ndarray] | None = None
+        """The newest frame, kept for snapshots."""
+        self.captured = 0
+        self.dropped = 0
+
+    def put(self, frame: tuple[int, np.ndarray]) -> None:
+        with self._cond:
+            if self._frame is not None:
+                self.dropped += 1
+            self._frame = self.latest = frame
+            self.captured += 1
+            self._cond.notify()
+
+    def take(self, timeout: float) -> tuple[int, np.ndarray] | None:
+        with self._cond:
+            if self._frame is None:
+                self._cond.wait(timeout)
+            frame, self._frame = self._frame, None
+            return frame
+
+
+def capture(config: RobotConfig, node: Node, slot: LatestFrame, stop: threading.Event,
+            sources: list[Source]) -> None:
+    """The capture thread: open the source, read frames into ``slot``, reopen after failures."""
+    cam = config.camera
+    source: Source | None = None
+    bad = 0
+    while not stop.is_set():
+        try:
+            if source is None:
+                source = open_source(config)
+                sources[:] = [source]
+                node.log.info("camera %r open", cam.source)
+            stamp, image = source.read()
+            slot.put((stamp, check_frame(image, cam.width, cam.height)))
+            bad = 0
+        except BadFrame as exc:
+            bad += 1
+            if bad <= 3 or bad % 100 == 0:
+                node.log.warning("camera %r: bad frame skipped (%s)", cam.source, exc)
+        except Exception as exc:  # a camera that fails must not take the service with it
+            node.log.warning("camera %r failed: %s; retrying in %.0f s", cam.source, exc, RETRY_S)
+            if source is not None:
+                with contextlib.suppress(Exception):
+                    source.close()
+            source = None
+            sources.clear()
+            stop.wait(RETRY_S)
+    if source is not None:
+        source.close()
+
+
+def jpeg(image: np.ndarray, quality: int) -> bytes:
+    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise BadFrame("JPEG encoding failed")
+    return data.tobytes()
+
+
+def make_detector(config: RobotConfig) -> Detector:
+    cam = config.camera
+    try:
+        world = load_world(config.localizer.world)
+        sizes = {marker.id: marker.size for marker in world.markers}
+    except ConfigError:
+        sizes = {}  # no map: every marker is taken to have camera.marker_size
+    return Detector(cam.dictionary, Intrinsics.from_config(cam), Mount.from_config(cam), sizes, cam.marker_size)
+
+
+async def main(config: RobotConfig) -> int:
+    cam = config.camera
+    try:
+        detector = make_detector(config)
+    except (ConfigError, AttributeError) as exc:
+        print(f"camera: {exc}", flush=True)
+        return 2
+    async with Node("camera", config) as node:
+        slot, stop, sources = LatestFrame(), threading.Event(), []
+        landmarks = node.publisher(keys.LANDMARKS)
+        images = node.publisher(keys.IMAGE)
+
+        async def snapshot(_request: m.Stop) -> m.Image:
+            frame = slot.latest
+            if frame is None:
+                raise SourceError(f"camera {cam.source!r} has delivered no frame yet")
+            stamp, image = frame
+            return m.Image(stamp=stamp, width=image.shape[1], height=image.shape[0],
+                           data=await asyncio.to_thread(jpeg, image, 90))
+
+        node.queryable(keys.SNAPSHOT, snapshot)
+
+        async def feed_truth() -> None:  # only for the simulated camera
+            async for truth in node.subscribe(keys.TRUTH):
+                for source in sources:
+                    if isinstance(source, SimSource):
+                        source.set_truth(truth)
+
+        thread = threading.Thread(target=capture, args=(config, node, slot, stop, sources),
+                                  name="camera-capture", daemon=True)
+        thread.start()
+        truth_task = asyncio.create_task(feed_truth()) if cam.source == "sim" else None
+        image_period = 1.0 / cam.image_rate_hz if cam.image_rate_hz > 0 else float("inf")
+        next_image = next_report = time.monotonic()
+        detected = 0
+        try:
+            while True:
+                frame = await asyncio.to_thread(slot.take, 0.5)
+                now = time.monotonic()
+                if now >= next_report:
+                    if slot.dropped:
+                        node.log.info("camera: %d frames captured, %d detected, %d dropped (detection behind)",
+                                      slot.captured, detected, slot.dropped)
+                    next_report = now + REPORT_S
+                if frame is None:
+                    continue
+                stamp, image = frame
+                found = await asyncio.to_thread(detector.detect, image)
+                detected += 1
+                landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
+                if now >= next_image:
+                    next_image = now + image_period
+                    small = cv2.resize(image, (cam.image_width, cam.image_height), interpolation=cv2.INTER_AREA)
+                    data = await asyncio.to_thread(jpeg, small, cam.jpeg_quality)
+                    images.put(m.Image(stamp=stamp, width=cam.image_width, height=cam.image_height, data=data))
+        finally:
+            stop.set()
+            if truth_task is not None:
+                truth_task.cancel()
+            await asyncio.to_thread(thread.join, RETRY_S + 1.0)
+
+
+if __name__ == "__main__":
+    run(main)

@@ -1,0 +1,137 @@
+"""The camera model: intrinsics (from a calibration file or nominal) and the mounting on the robot.
+
+Frames used here (all right-handed):
+
+* **world**: x, y on the floor, z up (the world map's frame).
+* **robot**: origin at the robot's centre on the floor, x forward, y left, z up.
+* **camera** (OpenCV's): origin at the lens, x right, y down, z forward along the optical axis.
+
+The camera looks horizontally (no pitch or roll); ``camera.mount_yaw`` turns it
+about the robot's z axis. The simulator's renderer and the camera service both
+use this module, so what the simulator draws is what the detector measures.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from icefloe.config import Camera
+from icefloe.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole camera with lens distortion, for images of ``width`` x ``height`` pixels."""
+
+    camera_matrix: np.ndarray
+    """3x3 [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], pixels."""
+    dist_coeffs: np.ndarray
+    """OpenCV distortion coefficients (k1, k2, p1, p2[, k3, ...]); zeros = no distortion."""
+    width: int
+    height: int
+
+    @classmethod
+    def nominal(cls, focal_px: float, width: int, height: int) -> Intrinsics:
+        """An ideal camera: square pixels, principal point in the image centre, no distortion."""
+        k = np.array([[focal_px, 0.0, (width - 1) / 2], [0.0, focal_px, (height - 1) / 2], [0, 0, 1]])
+        return cls(k, np.zeros(5), width, height)
+
+    @classmethod
+    def from_config(cls, camera: Camera) -> Intrinsics:
+        """The calibration file ``camera.calibration`` if set, else nominal from ``camera.focal_px``."""
+        if camera.calibration:
+            return load_calibration(camera.calibration, camera.width, camera.height)
+        if camera.focal_px <= 0:
+            raise ConfigError(f"camera.focal_px: must be > 0 pixels, got {camera.focal_px}")
+        return cls.nominal(camera.focal_px, camera.width, camera.height)
+
+
+def load_calibration(path: str | Path, width: int, height: int) -> Intrinsics:
+    """Read an OpenCV FileStorage file (YAML or JSON) written by a calibration (docs/camera.md).
+
+    Required nodes: ``camera_matrix`` (3x3), ``dist_coeffs`` (4, 5, 8, 12 or 14 numbers),
+    ``image_width`` and ``image_height`` (must equal the configured capture size:
+    a calibration only holds for the resolution it was made at).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: no such calibration file (camera.calibration)")
+    try:
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise ConfigError(f"{p}: not an OpenCV YAML/JSON file: {exc.err}") from None
+    try:
+        k = fs.getNode("camera_matrix").mat()
+        d = fs.getNode("dist_coeffs").mat()
+        w = fs.getNode("image_width").real()
+        h = fs.getNode("image_height").real()
+    finally:
+        fs.release()
+    if k is None or k.shape != (3, 3) or not np.all(np.isfinite(k)):
+        raise ConfigError(f"{p}: camera_matrix: expected a 3x3 matrix of finite numbers")
+    if k[0, 0] <= 0 or k[1, 1] <= 0 or k[2, 2] != 1:
+        raise ConfigError(f"{p}: camera_matrix: fx and fy must be > 0 and the last element 1")
+    if d is None or d.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(d)):
+        raise ConfigError(f"{p}: dist_coeffs: expected 4, 5, 8, 12 or 14 finite numbers")
+    if (int(w), int(h)) != (width, height):
+        raise ConfigError(
+            f"{p}: image_width/image_height: calibrated at {int(w)}x{int(h)}, "
+            f"but the camera captures {width}x{height} (camera.width, camera.height)"
+        )
+    return Intrinsics(k.astype(np.float64), d.reshape(-1).astype(np.float64), width, height)
+
+
+def save_calibration(path: str | Path, intrinsics: Intrinsics, rms_px: float | None = None) -> None:
+    """Write a calibration file in the format `load_calibration` reads."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    try:
+        fs.write("image_width", intrinsics.width)
+        fs.write("image_height", intrinsics.height)
+        fs.write("camera_matrix", intrinsics.camera_matrix)
+        fs.write("dist_coeffs", intrinsics.dist_coeffs.reshape(1, -1))
+        if rms_px is not None:
+            fs.write("rms_reprojection_error_px", rms_px)
+    finally:
+        fs.release()
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Where the camera sits on the robot (``camera.mount_*``)."""
+
+    x: float
+    """Ahead of the robot's centre, m."""
+    y: float
+    """Left of the robot's centre, m."""
+    z: float
+    """Height of the lens above the floor, m."""
+    yaw: float
+    """Heading of the optical axis relative to the robot's, rad, CCW."""
+
+    @classmethod
+    def from_config(cls, camera: Camera) -> Mount:
+        return cls(camera.mount_x, camera.mount_y, camera.mount_z, camera.mount_yaw)
+
+    def robot_from_camera(self) -> np.ndarray:
+        """3x3 rotation taking camera-frame vectors to robot-frame vectors."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        # Columns: where the camera's x (right), y (down) and z (forward) axes point on the robot.
+        return np.array([[s, 0.0, c], [-c, 0.0, s], [0.0, -1.0, 0.0]])
+
+    def to_robot(self, p_camera: np.ndarray) -> np.ndarray:
+        """A point in the camera frame (m) → the same point in the robot frame (m)."""
+        return self.robot_from_camera() @ np.asarray(p_camera, dtype=float) + [self.x, self.y, self.z]
+
+
+def range_bearing(p_robot: np.ndarray) -> tuple[float, float]:
+    """Range (m) and bearing (rad, CCW from the robot's heading) of a robot-frame point.
+
+    Both are measured in the floor plane from the robot's centre: a 2-D localizer
+    wants the horizontal distance, and the height of a marker does not change it.
+    """
+    return math.hypot(p_robot[0], p_robot[1]), math.atan2(p_robot[1], p_robot[0])
