@@ -313,15 +313,20 @@ def _field_path(message: str) -> tuple[str, str]:
     return where.rstrip("`").lstrip("."), text
 
 
+def field_error(source: str, exc: msgspec.ValidationError) -> str:
+    """``"<source>: <key path>: <problem>"`` from a msgspec validation error (for TOML files)."""
+    where, text = _field_path(str(exc))
+    if "unknown field" in text and where:
+        where = f"[{where}]"
+    return f"{source}: {where + ': ' if where else ''}{text}"
+
+
 def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
     """Typed config from a TOML-shaped dict; `ConfigError` names the source and the key."""
     try:
         config = msgspec.convert(data, RobotConfig)
     except msgspec.ValidationError as exc:
-        where, text = _field_path(str(exc))
-        if "unknown field" in text and where:
-            where = f"[{where}]"
-        raise ConfigError(f"{source}: {where + ': ' if where else ''}{text}") from None
+        raise ConfigError(field_error(source, exc)) from None
     if not config.name or "/" in config.name or "*" in config.name:
         raise ConfigError(f"{source}: name: {config.name!r} is not a usable robot name")
     run_dir = str(config.runtime_dir)

@@ -23,98 +23,61 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
+
+from .config import field_error
 from .errors import ConfigError
 
 WORLDS_DIR = Path(__file__).resolve().parent.parent / "deploy" / "worlds"
 
 
-@dataclass(frozen=True)
-class Marker:
+class Marker(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """One ArUco marker fixed in the world."""
 
-    id: int
+    id: Annotated[int, msgspec.Meta(ge=0)]
     x: float
     """Centre, world frame, m."""
     y: float
     """Centre, world frame, m."""
     z: float
     """Height of the marker's centre above the floor, m."""
-    size: float
+    size: Annotated[float, msgspec.Meta(gt=0)]
     """Side of the black square, m."""
     yaw: float
     """Direction the marker's face points, rad, counter-clockwise from +x."""
 
+    def __post_init__(self) -> None:
+        for key in ("x", "y", "z", "size", "yaw"):
+            if not math.isfinite(getattr(self, key)):
+                raise ValueError(f"`{key}` must be a finite number")
 
-@dataclass(frozen=True)
-class WorldMap:
-    """A named set of markers with unique ids."""
 
-    name: str
-    markers: tuple[Marker, ...]
+class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A named set of markers with unique ids (a world file: ``name`` and ``[[marker]]`` tables)."""
+
+    name: str = ""
+    markers: tuple[Marker, ...] = msgspec.field(default=(), name="marker")
 
     def marker(self, id: int) -> Marker | None:
         """The marker with this ArUco id, or None if the world has none."""
-        for m in self.markers:
-            if m.id == id:
-                return m
-        return None
-
-
-_FIELDS = {"id": int, "x": float, "y": float, "z": float, "size": float, "yaw": float}
-
-
-def _marker(raw: Any, where: str) -> Marker:
-    """One ``[[marker]]`` table → Marker; `ConfigError` names the table and the key."""
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{where}: expected a table")
-    unknown = sorted(set(raw) - set(_FIELDS))
-    if unknown:
-        raise ConfigError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(_FIELDS)})")
-    values: dict[str, Any] = {}
-    for key, kind in _FIELDS.items():
-        if key not in raw:
-            raise ConfigError(f"{where}: missing key {key!r}")
-        value = raw[key]
-        # TOML gives int or float; bool is an int in Python and never what was meant.
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}.{key}: expected a number, got {value!r}")
-        if kind is int:
-            if not isinstance(value, int) or value < 0:
-                raise ConfigError(f"{where}.{key}: expected a whole number >= 0, got {value!r}")
-        elif not math.isfinite(value):
-            raise ConfigError(f"{where}.{key}: expected a finite number, got {value!r}")
-        values[key] = kind(value)
-    if values["size"] <= 0:
-        raise ConfigError(f"{where}.size: must be > 0 m, got {values['size']}")
-    return Marker(**values)
+        return next((m for m in self.markers if m.id == id), None)
 
 
 def parse_world(data: dict[str, Any], source: str) -> WorldMap:
-    """A WorldMap from a TOML-shaped dict; ``source`` names the file in errors."""
-    unknown = sorted(set(data) - {"name", "marker"})
-    if unknown:
-        raise ConfigError(f"{source}: unknown key {unknown[0]!r} (allowed: name, [[marker]])")
-    name = data.get("name", Path(source).stem)
-    if not isinstance(name, str):
-        raise ConfigError(f"{source}: name: expected a string, got {name!r}")
-    raw_markers = data.get("marker", [])
-    if not isinstance(raw_markers, list):
-        raise ConfigError(f"{source}: marker: expected [[marker]] tables")
-    markers: list[Marker] = []
-    first_index: dict[int, int] = {}
-    for i, raw in enumerate(raw_markers):
-        marker = _marker(raw, f"{source}: marker[{i}]")
-        if marker.id in first_index:
-            raise ConfigError(
-                f"{source}: marker[{i}].id: id {marker.id} is already used by marker[{first_index[marker.id]}]"
-            )
-        first_index[marker.id] = i
-        markers.append(marker)
-    return WorldMap(name=name, markers=tuple(markers))
+    """A WorldMap from a TOML-shaped dict; `ConfigError` names ``source``, the marker and the key."""
+    try:
+        world = msgspec.convert(data, WorldMap)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(field_error(source, exc)) from None
+    first: dict[int, int] = {}
+    for i, m in enumerate(world.markers):
+        if m.id in first:
+            raise ConfigError(f"{source}: marker[{i}].id: id {m.id} is already used by marker[{first[m.id]}]")
+        first[m.id] = i
+    return world if world.name else msgspec.structs.replace(world, name=Path(source).stem)
 
 
 def load_world(name_or_path: str) -> WorldMap:

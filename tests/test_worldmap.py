@@ -1,0 +1,39 @@
+"""World files: the lab loads; bad files name the file, the marker and the key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from icefloe.errors import ConfigError
+from icefloe.worldmap import load_world
+
+
+def test_the_lab_world_loads() -> None:
+    lab = load_world("lab")
+    assert lab.name == "lab" and len(lab.markers) == 12
+    assert lab.marker(1).size == 0.12 and lab.marker(99) is None
+
+
+GOOD = "id = 3\nx = 1.0\ny = 0.0\nz = 0.1\nsize = 0.1\nyaw = 0.0\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (f"[[marker]]\n{GOOD}[[marker]]\n{GOOD}", "marker[1].id: id 3 is already used by marker[0]"),
+        (f"[[marker]]\n{GOOD.replace('size = 0.1', 'size = 0.0')}", "marker[0].size: Expected `float` > 0.0"),
+        (f"[[marker]]\n{GOOD.replace('x = 1.0', 'x = nan')}", "marker[0]: `x` must be a finite number"),
+        (f"[[marker]]\n{GOOD.replace('id = 3', 'id = -1')}", "marker[0].id: Expected `int` >= 0"),
+        (f"[[marker]]\n{GOOD}colour = 1\n", "[marker[0]]: Object contains unknown field `colour`"),
+        (f"[[marker]]\n{GOOD.replace('yaw = 0.0', '')}", "marker[0]: Object missing required field `yaw`"),
+    ],
+)
+def test_bad_world_files_name_the_marker_and_key(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "w.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        load_world(str(path))
+    assert str(err.value).startswith(f"{path}: ")
+    assert message in str(err.value), str(err.value)
