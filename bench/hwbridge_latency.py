@@ -67,9 +67,8 @@ class CountingWorld:
 
 def board_process(config_path: str, sample_ns, zero_ns, zero_count, ready) -> None:
     """Serve hwbridge's exchanges with the simulator's icoBoard model; record timings."""
-    from icefloe.sim.icoboard import IcoBoardModel
-
     from icefloe import config as config_mod
+    from icefloe.sim.icoboard import IcoBoardModel
     from icefloe.wire.icoboard import Op, Wire
 
     with contextlib.suppress(OSError):
@@ -112,11 +111,11 @@ def board_process(config_path: str, sample_ns, zero_ns, zero_count, ready) -> No
 def flood_process(config_path: str, rate_hz: float) -> None:
     """Publish io/ledarray at ``rate_hz`` (in bursts every millisecond) until killed."""
     import zenoh
-    from icefloe.schemas import codec, keys
-    from icefloe.schemas import messages as m
 
     from icefloe import config as config_mod
     from icefloe.runtime import zenoh_config
+    from icefloe.schemas import codec, keys
+    from icefloe.schemas import messages as m
 
     config = config_mod.load(config_path)
     session = zenoh.open(zenoh_config(config, connect=config.zenoh.connect))
@@ -174,13 +173,12 @@ def parse_cyclictest(text: str) -> dict[str, float]:
 
 
 async def measure(config_path: Path, args: argparse.Namespace, sample_ns, zero_ns, zero_count):
+    from icefloe import config as config_mod
+    from icefloe.runtime import Node
     from icefloe.schemas import codec, keys
     from icefloe.schemas import messages as m
     from icefloe.services.hwbridge.control import HIST_BINS, hist_bin, percentiles
     from icefloe.services.hwbridge.shm import Shared, block_name
-
-    from icefloe import config as config_mod
-    from icefloe.runtime import Node
 
     config = config_mod.load(config_path)
     async with Node("bench", config) as node:
@@ -237,13 +235,12 @@ async def measure(config_path: Path, args: argparse.Namespace, sample_ns, zero_n
 
 async def measure_penguinpi(config_path: Path, args: argparse.Namespace) -> dict:
     """PenguinPi (the simulator's firmware model on a pty): exchange rate and cycle latency."""
+    from icefloe import config as config_mod
+    from icefloe.runtime import Node
     from icefloe.schemas import keys
     from icefloe.schemas import messages as m
     from icefloe.services.hwbridge.control import percentiles
     from icefloe.services.hwbridge.shm import Shared, block_name
-
-    from icefloe import config as config_mod
-    from icefloe.runtime import Node
 
     config = config_mod.load(config_path)
     async with Node("bench", config) as node:

@@ -48,14 +48,14 @@ from typing import Any
 
 import msgspec
 import zenoh
-from icefloe.schemas import codec, keys
-from icefloe.schemas import messages as m
 from lab_harness import SERVICES, CpuMeter, Lab, Rates
 
 from icefloe import config as config_mod
 from icefloe import credentials
 from icefloe.config import RobotConfig
 from icefloe.runtime import MSGPACK, Node
+from icefloe.schemas import codec, keys
+from icefloe.schemas import messages as m
 
 MOVED_M = 0.05
 """A driven robot must move at least this far in the window, m."""

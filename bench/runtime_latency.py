@@ -44,11 +44,10 @@ def _config(port: int) -> Path:
 
 def _receive(config_path: str, variant: str, count: int) -> list[int]:
     """Receiver role: latencies in ns of `count` messages."""
-    from icefloe.schemas import codec, keys
-    from icefloe.schemas import messages as m
-
     from icefloe import config as config_mod
     from icefloe.runtime import Node, run_async, zenoh_config
+    from icefloe.schemas import codec, keys
+    from icefloe.schemas import messages as m
 
     cfg = config_mod.load(config_path)
     latencies: list[int] = []
@@ -103,11 +102,10 @@ def _receive(config_path: str, variant: str, count: int) -> list[int]:
 
 
 def _send(config_path: str, variant: str, count: int, rate: float) -> None:
-    from icefloe.schemas import codec, keys
-    from icefloe.schemas import messages as m
-
     from icefloe import config as config_mod
     from icefloe.runtime import MSGPACK, Node, run_async, zenoh_config
+    from icefloe.schemas import codec, keys
+    from icefloe.schemas import messages as m
 
     cfg = config_mod.load(config_path)
     period = 1.0 / rate

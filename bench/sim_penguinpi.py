@@ -24,12 +24,12 @@ import tty
 from pathlib import Path
 
 import serial
+
+from icefloe.config import Board, Geometry
 from icefloe.sim.clock import SimClock
 from icefloe.sim.penguinpi import PenguinPiSim
 from icefloe.sim.penguinpi_firmware import PenguinPiFirmware
 from icefloe.sim.world import World
-
-from icefloe.config import Board, Geometry
 from icefloe.wire import penguinpi as w
 
 REQUEST = w.encode_frame(w.Address.AD_MULTI, w.MultiOp.MULTI_SET_VEL_GET_ENC, w.pack_multi_set(20, 20))

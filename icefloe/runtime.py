@@ -365,6 +365,7 @@ class Node:
         payload = codec.encode(request) if request is not None else None
 
         def ask() -> Any:
+            start = time.monotonic()
             replies = self.session.get(key_expr, payload=payload, encoding=MSGPACK if payload else None,
                                        timeout=timeout)
             for reply in replies:
@@ -372,6 +373,8 @@ class Node:
                     s = reply.ok
                     return codec.decode(s.payload.to_bytes(), str(s.encoding), topic.reply, key_expr)
                 raise BadPayload(f"{key_expr}: {reply.err.payload.to_string()}")
+            if time.monotonic() - start < timeout / 2:  # Zenoh ends a query at once when nobody serves it
+                raise NotReachable(f"{key_expr}: nobody answers (is its service running, and may you call it?)")
             raise NotReachable(f"{key_expr}: no answer within {timeout} s")
 
         return await asyncio.to_thread(ask)

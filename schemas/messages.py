@@ -214,7 +214,7 @@ class Buttons(Message):
 
 
 class Dip(Message):
-    """``io/dip``: the DIP switch, published at start and when it changes."""
+    """``io/dip``: the DIP switch, published when it changes and once a second."""
 
     stamp: int
     value: int

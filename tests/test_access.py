@@ -10,12 +10,12 @@ from pathlib import Path
 import msgspec
 import pytest
 from conftest import ROOT, Robot
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
 
 from icefloe.credentials import make, read
 from icefloe.errors import NotReachable
 from icefloe.runtime import Node
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 
 
 def session(robot: Robot, user: str = "", password: str = "") -> Node:

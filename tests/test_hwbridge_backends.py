@@ -12,15 +12,15 @@ import tty
 
 import msgspec
 import pytest
+
+from icefloe.config import RobotConfig
+from icefloe.errors import BoardError, ConfigError
 from icefloe.services.hwbridge import control
 from icefloe.services.hwbridge.__main__ import check_config
 from icefloe.services.hwbridge.board import Board
 from icefloe.services.hwbridge.penguinpi import PenguinPiBoard, board_text
 from icefloe.services.hwbridge.rt import Cycle
 from icefloe.services.hwbridge.shm import IO_LED, IO_TEXT, MSG_WARNING, Shared
-
-from icefloe.config import RobotConfig
-from icefloe.errors import BoardError, ConfigError
 from icefloe.wire import penguinpi as ppi
 
 MS = 1_000_000

@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 
 import pytest
-from icefloe.services.hwbridge import control as c
 
 from icefloe.config import Geometry
+from icefloe.services.hwbridge import control as c
 
 
 def test_demand_units_follow_the_geometry() -> None:

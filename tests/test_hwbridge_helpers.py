@@ -8,10 +8,10 @@ import math
 import time
 
 from conftest import Robot, wait_for
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
 
 from icefloe.runtime import Node
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 
 
 async def sim_state(node: Node, action: str = "read", **fields: object) -> m.SimState:

@@ -9,9 +9,6 @@ import time
 
 import pytest
 from conftest import wait_for
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
-from icefloe.services.hwbridge.shm import Shared, block_name
 from test_hwbridge_helpers import (
     deadman_delay,
     driving,
@@ -20,6 +17,9 @@ from test_hwbridge_helpers import (
     start_stack,
 )
 
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+from icefloe.services.hwbridge.shm import Shared, block_name
 from icefloe.wire.icoboard import Op
 
 pytestmark = pytest.mark.slow

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from icefloe.schemas import messages as m
 from icefloe.services.oled import font
 from icefloe.services.oled.frame import COLS, HEIGHT, ROWS, WIDTH, Frame

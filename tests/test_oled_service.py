@@ -12,13 +12,13 @@ import time
 from typing import Any
 
 from conftest import Robot, wait_for
+
+from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.oled.frame import Frame
 from icefloe.services.oled.screens import Status, render
 from icefloe.services.oled.terminal import Terminal
-
-from icefloe.runtime import MSGPACK, Node
 
 
 class Viewer:

@@ -6,6 +6,7 @@ Times are injected, so each edge happens exactly when the test says.
 from __future__ import annotations
 
 import pytest
+
 from icefloe.services.power.battery import BadReading, BatteryMonitor
 from icefloe.services.power.lines import HoldDetector
 

@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from conftest import Robot, wait_for
+
+from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.oled.frame import Frame
-
-from icefloe.runtime import MSGPACK, Node
 
 BUTTON, REQUEST, ACK = 22, 10, 11
 

@@ -9,10 +9,10 @@ import math
 import msgspec
 import pytest
 from conftest import Robot, wait_for
-from icefloe.schemas import codec, keys
-from icefloe.schemas import messages as m
 
 from icefloe.errors import NotReachable
+from icefloe.schemas import codec, keys
+from icefloe.schemas import messages as m
 
 
 async def next_of(sub, timeout: float = 5.0):

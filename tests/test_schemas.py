@@ -7,10 +7,10 @@ import math
 
 import msgspec
 import pytest
-from icefloe.schemas import codec, export, keys
-from icefloe.schemas import messages as m
 
 from icefloe.errors import BadPayload
+from icefloe.schemas import codec, export, keys
+from icefloe.schemas import messages as m
 
 
 def test_json_schemas_are_current() -> None:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import threading
 
 import pytest
-from icefloe.sim.clock import SimClock
-from icefloe.sim.world import World
 
 from icefloe.config import Geometry
+from icefloe.sim.clock import SimClock
+from icefloe.sim.world import World
 
 
 class FakeTime:

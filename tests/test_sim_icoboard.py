@@ -13,12 +13,12 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from icefloe.sim.gpio import ACK, BUTTON, REQUEST, GpioLines
-from icefloe.sim.icoboard import IcoBoardModel, IcoBoardSim
-from icefloe.sim.world import World
 
 from icefloe.config import Board, Geometry
 from icefloe.errors import BoardMismatch
+from icefloe.sim.gpio import ACK, BUTTON, REQUEST, GpioLines
+from icefloe.sim.icoboard import IcoBoardModel, IcoBoardSim
+from icefloe.sim.world import World
 from icefloe.wire.icoboard import (
     BadCrc,
     Descriptor,

@@ -11,13 +11,13 @@ from pathlib import Path
 
 import pytest
 import serial
+
+from icefloe.config import Board, Geometry
 from icefloe.sim.clock import SimClock
 from icefloe.sim.penguinpi import PenguinPiSim
 from icefloe.sim.penguinpi_firmware import Defects, PenguinPiFirmware
 from icefloe.sim.pty_link import LineFaults
 from icefloe.sim.world import World
-
-from icefloe.config import Board, Geometry
 from icefloe.wire import penguinpi as w
 
 A, M, MU, L, ADC, H = w.Address, w.MotorOp, w.MultiOp, w.LedOp, w.AdcOp, w.HatOp

@@ -11,13 +11,13 @@ from typing import Any
 
 import pytest
 from conftest import Robot
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
-from icefloe.services.sim.simulator import Simulator
 
 from icefloe.config import parse
 from icefloe.errors import BadPayload, BoardMismatch, NotReachable
 from icefloe.runtime import Node
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+from icefloe.services.sim.simulator import Simulator
 from icefloe.wire.icoboard import Op, Wire, duty_to_raw
 
 

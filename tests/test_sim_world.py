@@ -5,10 +5,10 @@ from __future__ import annotations
 import math
 
 import pytest
-from icefloe.sim import world as wmod
-from icefloe.sim.world import World
 
 from icefloe.config import Geometry
+from icefloe.sim import world as wmod
+from icefloe.sim.world import World
 
 GEOM = Geometry()
 M_PER_COUNT = math.pi * GEOM.wheel_diameter / GEOM.ticks_per_rev

@@ -28,12 +28,12 @@ from typing import Any
 
 import msgspec
 import zenoh
-from icefloe.schemas import codec, keys
-from icefloe.schemas import messages as m
 
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload, ConfigError
 from icefloe.runtime import Node, run
+from icefloe.schemas import codec, keys
+from icefloe.schemas import messages as m
 
 from .bridge import Bridge, LoopReport
 from .rt import EXIT_MISMATCH
@@ -103,7 +103,8 @@ async def _terminate(proc: asyncio.subprocess.Process) -> None:
 
 
 async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
-    """State -> bus: hw/wheels at its rate, hw/loop at 1 Hz, battery/buttons/DIP on change."""
+    """State -> bus: hw/wheels at its rate, hw/loop at 1 Hz, battery on each reading, buttons on
+    presses, DIP on change and once a second."""
     hw = config.hwbridge
     wheels_pub = node.publisher(keys.WHEELS)
     loop_pub = node.publisher(keys.LOOP)
@@ -132,11 +133,11 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
             buttons_pub.put(m.Buttons(stamp=time.time_ns(), button=3,
                                       presses=s["button_presses"] - last_presses))
         last_presses = s["button_presses"]
-        if s["dip"] != last_dip and s["dip"] >= 0:
-            dip_pub.put(m.Dip(stamp=time.time_ns(), value=s["dip"]))
+        now = time.monotonic()
+        if s["dip"] >= 0 and (s["dip"] != last_dip or now >= next_loop):  # on change, and each second
+            dip_pub.put(m.Dip(stamp=time.time_ns(), value=s["dip"]))  # for subscribers that came later
         last_dip = s["dip"]
         bridge.forward_messages()
-        now = time.monotonic()
         if now >= next_loop:
             next_loop += 1.0
             stats = report.make(s, shared.hist, now)

@@ -19,11 +19,10 @@ import threading
 import time
 from collections.abc import Callable
 
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
-
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 
 from .control import (
     HIST_BINS,

@@ -19,12 +19,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
-
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload, NotReachable
 from icefloe.runtime import Node, run
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 
 from .frame import HEIGHT, WIDTH, Frame
 from .screens import ERRORS, SCREENS, USER, Status, render

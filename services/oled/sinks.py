@@ -15,11 +15,10 @@ from __future__ import annotations
 import asyncio
 from typing import Any, Protocol
 
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
-
 from icefloe.config import Display
 from icefloe.runtime import Node
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 
 from .font import CHARSET
 from .frame import HEIGHT, WIDTH, Frame

@@ -12,11 +12,10 @@ from __future__ import annotations
 import asyncio
 import time
 
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
-
 from icefloe.config import Power, RobotConfig
 from icefloe.runtime import Node, Subscription, run
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 
 from .battery import BadReading, BatteryMonitor
 from .gpio import Lines, open_lines

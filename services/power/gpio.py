@@ -19,11 +19,10 @@ import time
 from collections.abc import AsyncIterator
 from typing import Any, Protocol
 
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
-
 from icefloe.config import Power
 from icefloe.runtime import Node
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 
 Edge = tuple[int, int, float]
 """(BCM line, new level 0/1, time in s on the backend's `clock`)."""

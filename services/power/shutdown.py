@@ -15,12 +15,11 @@ from __future__ import annotations
 import asyncio
 import time
 
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
-
 from icefloe.config import Power
 from icefloe.errors import BadPayload, NotReachable
 from icefloe.runtime import Node
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 
 from .gpio import Lines
 

@@ -23,12 +23,11 @@ import sys
 import time
 from collections.abc import Awaitable, Callable
 
+from icefloe.config import RobotConfig
+from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.sim.gpio import ACK, BUTTON, REQUEST
-
-from icefloe.config import RobotConfig
-from icefloe.runtime import Node, run
 
 from .simulator import Simulator
 

@@ -12,15 +12,14 @@ import logging
 import time
 from collections.abc import Callable
 
+from icefloe.config import RobotConfig
+from icefloe.errors import BadPayload
 from icefloe.schemas import messages as m
 from icefloe.sim.clock import SimClock
 from icefloe.sim.gpio import BUTTON, GpioLines
 from icefloe.sim.icoboard import IcoBoardSim
 from icefloe.sim.penguinpi import PenguinPiSim
 from icefloe.sim.world import World
-
-from icefloe.config import RobotConfig
-from icefloe.errors import BadPayload
 from icefloe.wire import penguinpi
 from icefloe.wire.icoboard import Descriptor
 

@@ -1,0 +1,52 @@
+"""The PenguinPi web API service: ``python -m icefloe.services.webapi --config ...``.
+
+Serves HTTP on ``[webapi] port`` (8080) and talks to the robot over the bus.
+Timed motions (``/robot/set/velocity?...&time=``) are ``cmd/motion`` queries:
+hwbridge runs the ramp and answers when the wheels have been told to stop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+
+from aiohttp import web
+
+from icefloe.client import AsyncRobot
+from icefloe.config import RobotConfig
+from icefloe.runtime import run
+
+from .routes import Api
+
+
+async def main(config: RobotConfig) -> None:
+    # A short timeout for bus waits: an HTTP client should hear "not answering" soon.
+    robot = AsyncRobot(config=config, service="webapi", timeout=2.0)
+    try:
+        await robot.open(connect_timeout=math.inf)  # a service waits for its router to come up
+        await serve(robot)
+    finally:
+        await robot.close()  # stops the wheels if a client had set them moving
+
+
+async def serve(robot: AsyncRobot) -> None:
+    """Serve HTTP until cancelled (SIGINT/SIGTERM)."""
+    settings = robot.config.webapi
+    api = Api(robot)
+    runner = web.AppRunner(api.app(), access_log=None)
+    await runner.setup()
+    # A short shutdown timeout: video streams never end by themselves.
+    site = web.TCPSite(runner, settings.host, settings.port, shutdown_timeout=1.0)
+    await site.start()
+    robot.node.log.info("PenguinPi web API on http://%s:%d/", settings.host, settings.port)
+    try:
+        await api.follow()  # runs until SIGINT/SIGTERM cancels us
+    finally:
+        with contextlib.suppress(Exception):
+            await robot.stop()  # whatever a client asked for, the robot stops with us
+        await asyncio.shield(runner.cleanup())
+
+
+if __name__ == "__main__":
+    run(main)

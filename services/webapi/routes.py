@@ -1,0 +1,289 @@
+"""The HTTP routes of the PenguinPi web API, each turned into bus messages.
+
+Every handler first parses all its parameters (`params`), so a rejected request
+sends nothing. Bodies and content types are the old server's (facts §5.2):
+text as ``text/html; charset=utf-8`` (MATLAB's PiBot decodes the JSON itself and
+would choke on ``application/json``), errors as ``{"message": ...}`` with
+status 400. When the robot's service behind a route does not answer, the route
+answers 503 with a message naming the bus key.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from aiohttp import web
+
+from icefloe.client import AsyncRobot
+from icefloe.errors import NotReachable
+from icefloe.runtime import Node
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+
+from . import params
+from .params import InvalidCommand
+
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+BOUNDARY = "frame"
+S4 = 3
+"""io/buttons number of the HAT's S4, the button the old /hat/button/get counted."""
+
+
+def text(body: object = "") -> web.Response:
+    """A plain reply as Flask sends a ``str``: 200, text/html; charset=utf-8."""
+    return web.Response(text=str(body), content_type="text/html", charset="utf-8")
+
+
+def error(status: int, message: str) -> web.Response:
+    """``{"message": ...}`` as application/json (no charset, as Flask's jsonify)."""
+    return web.Response(status=status, body=json.dumps({"message": message}).encode(),
+                        content_type="application/json")
+
+
+@web.middleware
+async def errors(request: web.Request, handler: Handler) -> web.StreamResponse:
+    """Turn refusals into the old server's 400 JSON, and silent services into 503."""
+    log = logging.getLogger("icefloe.webapi")
+    try:
+        return await handler(request)
+    except InvalidCommand as exc:
+        log.info("%s rejected: %s", request.rel_url, exc.message)
+        return error(400, exc.message)
+    except NotReachable as exc:
+        log.warning("%s: %s", request.rel_url, exc)
+        return error(503, f"robot not answering: {exc}")
+
+
+class Api:
+    """The state the routes share: the robot on the bus and the PenguinPi extras."""
+
+    def __init__(self, robot: AsyncRobot) -> None:
+        self.robot = robot
+        self.node: Node = robot.node
+        config = robot.config
+        self.unit = params.demand_to_mps(config.geometry)
+        """m/s per firmware demand unit."""
+        self.max_demand = config.webapi.max_demand
+        self.max_time = config.webapi.max_time
+        self.demand = [0.0, 0.0]
+        """Last held demands (left, right), for /motor/set/velocity."""
+        self.encoder_zero = (0, 0)
+        """Counts at the last /robot/hw/reset; the bus counts never reset."""
+        self.dip: int | None = None
+        self.s4_presses = 0
+        self.streams: set[asyncio.Task[Any]] = set()
+        self._text = self.node.publisher(keys.BOARD_TEXT)
+        self._screen = self.node.publisher(keys.BOARD_SCREEN)
+        self._ledarray = self.node.publisher(keys.LEDARRAY)
+        self._leds = self.node.publisher(keys.LEDS)
+
+    async def follow(self) -> None:
+        """Keep the DIP switch and count S4 presses (run as a task)."""
+        async with asyncio.TaskGroup() as tasks:
+            tasks.create_task(self._follow_dip())
+            tasks.create_task(self._follow_buttons())
+
+    async def _follow_dip(self) -> None:
+        async for dip in self.node.subscribe(keys.DIP):
+            self.dip = dip.value
+
+    async def _follow_buttons(self) -> None:
+        async for press in self.node.subscribe(keys.BUTTONS, latest=False):  # count every one
+            if press.button == S4:
+                self.s4_presses += press.presses
+
+    # ------------------------------------------------------------------ helpers
+
+    def encoders(self) -> tuple[int, int] | None:
+        """Counts since the last /robot/hw/reset, wrapped to int16 as the firmware's."""
+        counts = self.robot.encoders
+        if counts is None:
+            return None
+        return (params.to_int16(counts.left - self.encoder_zero[0]),
+                params.to_int16(counts.right - self.encoder_zero[1]))
+
+    def state(self) -> web.Response:
+        """The state JSON of §5.5, in the old pose convention (y right, theta clockwise)."""
+        left, right = self.encoders() or (None, None)  # null before hwbridge's first counts
+        pose = self.robot.pose
+        body = {
+            "encoder": {"left": left, "right": right},
+            # Before the first pose the old server had integer zeros; so do we.
+            "pose": {"x": 0, "y": 0, "theta": 0} if pose is None else
+                    {"x": pose.x, "y": -pose.y, "theta": -pose.theta},
+        }
+        return text(json.dumps(body))
+
+    async def drive(self, left: float, right: float) -> None:
+        """Hold wheel demands (firmware units) until the next command."""
+        self.demand = [left, right]
+        await self.robot.set_velocity(left * self.unit, right * self.unit)
+
+    # ------------------------------------------------------------------ robot
+
+    async def set_velocity(self, request: web.Request) -> web.Response:
+        left, right = params.speeds(request.query, self.max_demand)
+        duration, accel = params.timing(request.query, self.max_time)
+        if duration is None:
+            await self.drive(left, right)
+        else:
+            # One cmd/motion query: hwbridge ramps, holds and stops, and answers when done.
+            self.demand = [0.0, 0.0]
+            await self.robot.set_velocity(left * self.unit, right * self.unit, duration, accel)
+        return self.state()
+
+    async def stop(self, request: web.Request) -> web.Response:
+        self.demand = [0.0, 0.0]
+        await self.robot.stop()
+        return self.state()
+
+    async def get_encoder(self, request: web.Request) -> web.Response:
+        enc = self.encoders()
+        if enc is None:
+            raise NotReachable(f"no encoder counts yet on {self.node.key(keys.WHEELS)}")
+        return text(f"{enc[0]},{enc[1]}")
+
+    async def hw_reset(self, request: web.Request) -> web.Response:
+        # The old MULTI_CLEAR_DATA stopped the motors and zeroed the counters.
+        await self.stop(request)
+        counts = self.robot.encoders
+        if counts is not None:
+            self.encoder_zero = (counts.left, counts.right)
+        return text()
+
+    async def pose_reset(self, request: web.Request) -> web.Response:
+        await self.robot.reset_pose()
+        return text()
+
+    # ------------------------------------------------------------------ motors
+
+    async def motor_encoder(self, request: web.Request) -> web.Response:
+        side = params.integer(request.query, "id", "Bad motor id", 0, 1)
+        enc = self.encoders()
+        if enc is None:
+            raise NotReachable(f"no encoder counts yet on {self.node.key(keys.WHEELS)}")
+        return text(enc[side])
+
+    async def motor_velocity(self, request: web.Request) -> web.Response:
+        side = params.integer(request.query, "id", "Bad motor id", 0, 1)
+        value = params.integer(request.query, "value", "Bad motor value",
+                               -self.max_demand, self.max_demand)
+        demand = list(self.demand)
+        demand[side] = value
+        await self.drive(*demand)
+        return text()
+
+    # ------------------------------------------------------------------ battery
+
+    async def voltage(self, request: web.Request) -> web.Response:
+        await self.robot.ready(keys.HW_BATTERY.name)
+        assert self.robot.battery is not None
+        return text(float(round(self.robot.battery.voltage * 1000, 3)))  # mV, as str(float)
+
+    async def current(self, request: web.Request) -> web.Response:
+        await self.robot.ready(keys.HW_BATTERY.name)
+        assert self.robot.battery is not None
+        return text(float(round(self.robot.battery.current * 1000, 3)))  # mA
+
+    # ------------------------------------------------------------------ HAT
+
+    async def dip_get(self, request: web.Request) -> web.Response:
+        if self.dip is None:
+            raise NotReachable(f"no DIP switch reading yet on {self.node.key(keys.DIP)}")
+        return text(self.dip)
+
+    async def button_get(self, request: web.Request) -> web.Response:
+        count, self.s4_presses = self.s4_presses, 0  # read resets, as HAT_GET_BUTTON did
+        return text(count)
+
+    async def ledarray_set(self, request: web.Request) -> web.Response:
+        mask = params.integer(request.query, "value", "Bad value", 0, 0xFFFF, any_base=True)
+        self._ledarray.put(m.LedArray(mask=mask))
+        return text()
+
+    async def screen_set(self, request: web.Request) -> web.Response:
+        index = params.integer(request.query, "value", "Bad screen value", 0, 255)
+        self._screen.put(m.OledScreen(index=index))
+        return text()
+
+    async def screen_print(self, request: web.Request) -> web.Response:
+        value = params.text(request.query)
+        self._text.put(m.OledText(text=value))  # raw user text, no newline added
+        self._screen.put(m.OledScreen(index=1))  # then show the USER screen
+        return text()
+
+    # ------------------------------------------------------------------ LEDs
+
+    async def led_state(self, request: web.Request) -> web.Response:
+        led = params.integer(request.query, "id", "Bad led id", 2, 4, any_base=True)
+        on = params.integer(request.query, "value", "Bad led value", 0, 1)
+        self.robot.leds[led] = bool(on)
+        return text()
+
+    async def led_count(self, request: web.Request) -> web.Response:
+        led = params.integer(request.query, "id", "Bad led id", 2, 4, any_base=True)
+        ms = params.integer(request.query, "value", "Bad led value", 0, 255, decimals=True)
+        # Count 0 kept the LED on for good on the old board; pulse 0 means the same on the bus.
+        self._leds.put(m.Led(led=led, on=True, pulse=ms / 1000))
+        return text()
+
+    # ------------------------------------------------------------------ camera
+
+    async def camera(self, request: web.Request) -> web.StreamResponse:
+        """MJPEG: one ``--frame`` part per new ``camera/image``, until the client leaves."""
+        response = web.StreamResponse(headers={
+            "Content-Type": f"multipart/x-mixed-replace; boundary={BOUNDARY}"})
+        await response.prepare(request)
+        task = asyncio.current_task()
+        assert task is not None
+        self.streams.add(task)
+        try:
+            fresh = False  # the first part is the latest frame, so a viewer starts at once
+            while True:
+                try:
+                    image = await self.robot.image_jpeg(fresh=fresh)
+                except NotReachable:
+                    continue  # no camera (yet): keep the stream open, as the old server did
+                fresh = True
+                await response.write(b"--" + BOUNDARY.encode() + b"\r\nContent-Type: image/jpeg\r\n\r\n"
+                                     + image.data + b"\r\n")
+        except (ConnectionResetError, asyncio.CancelledError):
+            pass  # the viewer left, or the service is stopping
+        finally:
+            self.streams.discard(task)
+        return response
+
+    def app(self) -> web.Application:
+        app = web.Application(middlewares=[errors])
+        routes = {
+            "/robot/set/velocity": self.set_velocity,
+            "/robot/stop": self.stop,
+            "/robot/get/encoder": self.get_encoder,
+            "/robot/hw/reset": self.hw_reset,
+            "/robot/pose/reset": self.pose_reset,
+            "/motor/get/encoder": self.motor_encoder,
+            "/motor/set/velocity": self.motor_velocity,
+            "/battery/get/voltage": self.voltage,
+            "/battery/get/current": self.current,
+            "/hat/dip/get": self.dip_get,
+            "/hat/button/get": self.button_get,
+            "/hat/ledarray/set": self.ledarray_set,
+            "/hat/screen/set": self.screen_set,
+            "/hat/screen/print": self.screen_print,
+            "/led/set/state": self.led_state,
+            "/led/set/count": self.led_count,
+            "/camera/get": self.camera,
+        }
+        for path, handler in routes.items():
+            app.router.add_get(path, handler)
+        app.on_shutdown.append(self._end_streams)
+        return app
+
+    async def _end_streams(self, app: web.Application) -> None:
+        for task in list(self.streams):
+            task.cancel()

@@ -1,0 +1,194 @@
+"""Every example in examples/ runs against the simulated robot and does what it says.
+
+The robot is real processes: the simulator, hwbridge, odometry (and info, camera
+where an example needs them), on a Zenoh router of their own. Where an example
+claims the robot got somewhere, we check the simulator's ground truth
+(``sim/truth``), not the robot's own estimate.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import msgspec
+import pytest
+from conftest import ROOT, wait_for
+
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+
+EXAMPLES = ROOT / "examples"
+
+
+async def run_example(*args: str, timeout: float = 90.0) -> str:
+    """Run ``python examples/<args>``; returns its output, fails on a non-zero exit."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, *args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        out, _ = await asyncio.wait_for(proc.communicate(), timeout)
+    except TimeoutError:
+        proc.kill()
+        raise AssertionError(f"{args[0]} did not finish within {timeout} s") from None
+    text = out.decode(errors="replace")
+    assert proc.returncode == 0, f"{args[0]} exited {proc.returncode}:\n{text}"
+    return text
+
+
+class Truths:
+    """Every ``sim/truth`` sample while the test runs."""
+
+    def __init__(self, node) -> None:
+        self.samples: list[m.Truth] = []
+        self._task = asyncio.create_task(self._record(node))
+
+    async def _record(self, node) -> None:
+        async for t in node.subscribe(keys.TRUTH, latest=False, maxsize=100_000):
+            self.samples.append(t)
+
+    @property
+    def last(self) -> m.Truth:
+        return self.samples[-1]
+
+    def close(self) -> None:
+        self._task.cancel()
+
+
+def start_sim_robot(robot, *services: str) -> None:
+    for service in ("sim", "hwbridge", "odometry", *services):
+        robot.start(service)
+
+
+async def test_drive_square_ends_where_it_started(robot):
+    start_sim_robot(robot)
+    async with robot.node("tester") as node:
+        truths = Truths(node)
+        await wait_for(lambda: truths.samples, timeout=20)
+        side = 0.3
+        out = await run_example("examples/drive_square.py", "--config", str(robot.config_path),
+                                "--side", str(side))
+        await asyncio.sleep(0.5)  # the last stop has settled; truth has caught up
+        truths.close()
+        start, end = truths.samples[0], truths.last
+        assert "corner 4:" in out
+        # It drove a square: it passed each corner ...
+        for ahead, left in [(side, 0), (side, side), (0, side)]:
+            nearest = min(math.hypot(t.x - start.x - ahead, t.y - start.y - left)
+                          for t in truths.samples)
+            assert nearest < 0.05, f"never came within 5 cm of corner ({ahead}, {left}): {nearest:.3f} m"
+        # ... and came back within 5 cm of where it started.
+        assert math.hypot(end.x - start.x, end.y - start.y) < 0.05, (start, end, out)
+
+
+async def test_raw_zenoh_service_drives_on_request(robot):
+    start_sim_robot(robot, "info")
+    service = robot.start_module("examples.raw_zenoh_service", name="raw_zenoh_service")
+    async with robot.node("tester") as node:
+        truths = Truths(node)
+        await wait_for(lambda: "waiting for requests" in service.output, timeout=60)
+        await wait_for(lambda: truths.samples, timeout=20)
+        request = f"icefloe/{robot.name}/student/forward"
+        json_encoding = "application/json"
+        # A bad request is refused with a message, and nothing moves.
+        node.session.put(request, b'{"distance": "far"}', encoding=json_encoding)
+        await wait_for(lambda: "refused" in service.output)
+        assert "distance must be a number of metres" in service.output
+        await asyncio.sleep(0.5)
+        assert abs(truths.last.x) < 1e-3
+        node.session.put(request, b'{"distance": 0.25}', encoding=json_encoding)
+        await wait_for(lambda: "done:" in service.output, timeout=30)
+        await asyncio.sleep(1.0)  # coasting to a stop
+        truths.close()
+        assert truths.last.x == pytest.approx(0.25, abs=0.03)
+        assert abs(truths.last.y) < 0.02
+    assert service.stop() == 0, service.output
+
+
+NODE = shutil.which("node")
+NPM = shutil.which("npm")
+
+
+@pytest.fixture(scope="session")
+def node_modules() -> Path:
+    """examples/node with its npm packages installed (from package-lock.json)."""
+    if not (NODE and NPM):
+        pytest.skip("Node.js and npm are not installed here")
+    folder = EXAMPLES / "node"
+    if not (folder / "node_modules" / "ajv").exists():
+        done = subprocess.run([NPM, "ci", "--no-audit", "--no-fund"], cwd=folder,
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stdout + done.stderr
+    return folder
+
+
+async def test_node_consumer_validates_captured_messages(robot, node_modules, tmp_path):
+    start_sim_robot(robot)
+    captured = tmp_path / "captured"
+    captured.mkdir()
+    async with robot.node("tester") as node:
+        # Capture one real sample of each of these from the running robot, as raw bytes.
+        wanted = {"hw/wheels": "Wheels", "odom/pose": "Pose", "sim/truth": "Truth",
+                  "hw/battery": "BatteryReading"}
+        subs = {key: node.subscribe_raw(node.key(key)) for key in wanted}
+        for key, name in wanted.items():
+            sample = await asyncio.wait_for(anext(subs[key]), 20)
+            assert sample.encoding.startswith("application/msgpack")
+            (captured / f"{name}.msgpack").write_bytes(sample.payload)
+    # And one message that is wrong: a Pose without x, and a Twist with a string.
+    (captured / "Pose-bad.msgpack").write_bytes(
+        msgspec.msgpack.encode({"stamp": 1, "y": 0.0, "theta": 0.0}))
+    (captured / "Twist-bad.msgpack").write_bytes(msgspec.msgpack.encode({"v": "fast", "w": 0}))
+    done = await asyncio.to_thread(
+        subprocess.run, [NODE, "validate.mjs", str(captured)], cwd=node_modules,
+        capture_output=True, text=True, timeout=60)
+    lines = dict(line.split(" ", 1) for line in done.stdout.strip().splitlines())
+    for name in wanted.values():
+        assert lines[f"{name}.msgpack"].startswith("ok"), done.stdout + done.stderr
+    assert "must have required property 'x'" in lines["Pose-bad.msgpack"]
+    assert "/v must be number" in lines["Twist-bad.msgpack"]
+    assert done.returncode == 1, "invalid messages must make the consumer fail"
+    summary = json.loads(done.stderr.strip().splitlines()[-1])
+    assert summary == {"valid": 4, "invalid": 2}
+
+
+CAMERA_READY = (ROOT / "services" / "camera" / "__main__.py").exists()
+MARKER_5 = (1.2, 2.0)
+"""Marker 5 of deploy/worlds/lab.toml: 59° to the left of the start pose, out of view at first."""
+
+
+async def play_camera(node, marker: tuple[float, float], half_fov: float = math.radians(30)) -> None:
+    """Stand-in for the camera service while it is being written: publishes marker 5's range and
+    bearing, from the simulator's truth, whenever it is within the camera's field of view."""
+    landmarks = node.publisher(keys.LANDMARKS)
+    async for t in node.subscribe(keys.TRUTH):
+        dx, dy = marker[0] - t.x, marker[1] - t.y
+        bearing = math.atan2(dy, dx) - t.theta
+        bearing = math.atan2(math.sin(bearing), math.cos(bearing))
+        seen = [m.Landmark(id=5, range=math.hypot(dx, dy), bearing=bearing)] if abs(bearing) < half_fov else []
+        landmarks.put(m.Landmarks(stamp=t.stamp, landmarks=seen))
+        await asyncio.sleep(1 / 15)  # the camera's frame rate
+
+
+async def test_follow_marker_reaches_its_marker(robot):
+    start_sim_robot(robot, *(["camera"] if CAMERA_READY else []))
+    async with robot.node("tester") as node:
+        camera = None if CAMERA_READY else asyncio.create_task(play_camera(node, MARKER_5))
+        truths = Truths(node)
+        await wait_for(lambda: truths.samples, timeout=20)
+        out = await run_example("examples/follow_marker.py", "--config", str(robot.config_path),
+                                "--marker", "5", "--stop", "0.4")
+        await asyncio.sleep(1.0)  # stopped and settled
+        truths.close()
+        if camera is not None:
+            camera.cancel()
+        end = truths.last
+        distance = math.hypot(MARKER_5[0] - end.x, MARKER_5[1] - end.y)
+        assert "reached marker 5" in out
+        assert 0.25 < distance < 0.6, f"ended {distance:.2f} m from the marker:\n{out}"
+        facing = math.atan2(MARKER_5[1] - end.y, MARKER_5[0] - end.x) - end.theta
+        assert abs(math.atan2(math.sin(facing), math.cos(facing))) < math.radians(15)

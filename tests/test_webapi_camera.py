@@ -1,0 +1,88 @@
+"""``/camera/get``: the MJPEG stream, read as the old clients read it (OpenCV's VideoCapture)."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from webapi_helpers import board, jpeg, webapi, webapi_robot
+
+from icefloe.schemas import keys
+
+HEAD = b"--frame\r\nContent-Type: image/jpeg\r\n\r\n"
+"""Start of every part, as the old server wrote it (facts §5.2)."""
+
+
+@pytest.fixture
+def robot(make_robot):
+    return webapi_robot(make_robot)
+
+
+def square_x(frame: np.ndarray) -> int:
+    """Left edge of the white square our test frames carry, px."""
+    return int(np.argmax(frame[60, :, 0] > 200))
+
+
+async def test_stream_parts_are_the_old_servers(robot):
+    async with webapi(robot) as http, board(robot) as b:
+        b.image = jpeg(shade=7)
+        async with http.session.get(http.base + "/camera/get") as r:
+            assert r.status == 200
+            assert r.headers["Content-Type"] == "multipart/x-mixed-replace; boundary=frame"
+            assert "Content-Length" not in r.headers
+            part = await r.content.readexactly(len(HEAD) + len(b.image) + 2)
+            assert part == HEAD + b.image + b"\r\n"
+            assert await r.content.readexactly(len(HEAD)) == HEAD  # and the next part follows
+            # A viewer still connected must not keep the service from stopping.
+            assert http.proc.stop() == 0, http.proc.output
+
+
+async def test_opencv_reads_the_stream_and_sees_new_frames(robot):
+    async with webapi(robot) as http, board(robot) as b:
+        b.image = jpeg(shade=0)
+        capture = await asyncio.to_thread(cv2.VideoCapture, http.base + "/camera/get")
+        try:
+            assert capture.isOpened()
+            ok, frame = await asyncio.to_thread(capture.read)
+            assert ok and frame.shape == (240, 320, 3)
+            assert abs(square_x(frame) - 20) <= 2
+            b.image = jpeg(shade=100)  # a new picture must come through the same stream
+            for _ in range(100):
+                ok, frame = await asyncio.to_thread(capture.read)
+                assert ok
+                if abs(square_x(frame) - 120) <= 2:
+                    break
+            else:
+                raise AssertionError("the stream never showed the new frame")
+        finally:
+            capture.release()
+
+
+CAMERA_READY = (Path(__file__).resolve().parent.parent / "services" / "camera" / "__main__.py").exists()
+
+
+@pytest.mark.skipif(not CAMERA_READY, reason="the camera service (services/camera) is not written yet")
+async def test_opencv_reads_the_simulated_camera(make_robot):
+    robot = webapi_robot(make_robot, "[camera]\nimage_rate_hz = 10.0\n")
+    for service in ("sim", "camera"):
+        robot.start(service)
+    async with webapi(robot) as http, robot.node("tester") as node:
+        images = node.subscribe(keys.IMAGE)
+        capture = await asyncio.to_thread(cv2.VideoCapture, http.base + "/camera/get")
+        try:
+            assert capture.isOpened()
+            ok, frame = await asyncio.to_thread(capture.read)
+            assert ok
+            cfg = robot.config.camera
+            assert frame.shape == (cfg.image_height, cfg.image_width, 3)
+            # The same picture as the camera's on the bus (the robot stands still; only
+            # the simulated sensor noise differs from frame to frame).
+            image = await asyncio.wait_for(anext(images), 10)
+            bus = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_COLOR)
+            assert np.mean(cv2.absdiff(frame, bus)) < 8
+            assert frame.std() > 10  # a real picture (walls, floor, markers), not a blank frame
+        finally:
+            capture.release()
