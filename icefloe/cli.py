@@ -10,6 +10,7 @@
     icefloe hz KEY                             message rate of a key
     icefloe schemas [--check]                  regenerate schemas/json (or check it is current)
     icefloe config [CONFIG]                    check a robot config and print it resolved
+    icefloe viz [--connect EP] [--robot NAME]  live Rerun view of the robots on a bus (--save F.rrd, --serve)
     icefloe credentials [CONFIG] [--host IP]   make the robot's credentials file (once)
     icefloe router --lab DIR                   a lab router for the robots whose credentials are in DIR
 
@@ -323,6 +324,15 @@ def _can_show_viewer() -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["viz"]:  # the viewer has its own options (and needs the `viz` extra)
+        try:
+            from .services.viz.__main__ import cli as viz
+        except ImportError as exc:
+            print(f"icefloe: viz needs rerun-sdk: pip install -e '.[viz]' ({exc})", file=sys.stderr)
+            return 2
+        viz(argv[1:])
+        return 0
     args = _parser().parse_args(argv)
     try:
         if args.command == "up":

@@ -101,7 +101,7 @@ class RawSample:
     """time.monotonic() when the callback saw it."""
 
 
-class _LimitedLog:
+class LimitedLog:
     """At most `burst` warnings per second; the rest are counted and summarised."""
 
     def __init__(self, log: logging.Logger, burst: int = 10) -> None:
@@ -148,7 +148,7 @@ class Subscription(Generic[T]):
         self._wake = asyncio.Event()
         self._wake_pending = False
         self._closed = False
-        self._warn = _LimitedLog(node.log)
+        self._warn = LimitedLog(node.log)
         if coalesce:
             # Zenoh keeps the samples in its own ring (newest `maxsize`); the loop drains it every
             # `coalesce` seconds, so no Python runs on Zenoh's thread per sample.

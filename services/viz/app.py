@@ -1,0 +1,179 @@
+"""The viz service: follow robots on the bus and stream them to a Rerun viewer.
+
+Data flow, and where it may be dropped (always here on the laptop, never on the robot)::
+
+    robot publishers --Zenoh--> Subscription (latest value) --> Decimator --> RobotLogger --> Rerun sink
+         (drop if the link        (keeps only the newest      (e.g. 100 Hz     (rr.log:        (viewer, server
+          is congested)            sample: we never queue)     -> 20 Hz)        never blocks)   or .rrd file)
+
+* Robot publishers use congestion control DROP, and our subscriptions keep only
+  the newest sample, so a slow laptop never pushes back on the robot.
+* ``--serve`` holds the recording in a gRPC server in this process with a
+  memory limit: when viewers are slow or gone, the oldest data is dropped there.
+* Without ``--robot``, robots are found by their liveliness tokens
+  (``icefloe/*/alive/*``) and each appears under ``/robots/<name>`` in its own tab.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import rerun as rr
+
+from icefloe.config import RobotConfig
+from icefloe.errors import ConfigError
+from icefloe.runtime import LimitedLog, Node
+from icefloe.schemas import keys
+from icefloe.schemas.keys import Topic
+from icefloe.worldmap import load_world
+
+from .blueprint import blueprint
+from .decimate import Decimator
+from .logging_rr import RobotLogger
+
+APP_ID = "icefloe"
+DISCOVERY_INTERVAL_S = 1.0
+
+
+@dataclass(frozen=True)
+class VizOptions:
+    """What to show and where (the command-line options of ``icefloe viz``)."""
+
+    robot: str | None = None
+    """Follow only this robot; None = every robot that has liveliness tokens."""
+    serve: bool = False
+    """Serve a web viewer (and a gRPC endpoint for native viewers) instead of spawning one."""
+    save: str | None = None
+    """Record to this .rrd file instead of showing a viewer."""
+    duration: float | None = None
+    """Stop after this many seconds (None = until SIGINT/SIGTERM)."""
+    web_port: int = 9090
+    grpc_port: int = 9876
+    memory_limit: str = "25%"
+    """How much the viewer (or the ``--serve`` server) keeps before dropping the oldest data."""
+
+
+@dataclass(frozen=True)
+class Stream:
+    """One bus topic shown in the viewer, and how much of it."""
+
+    topic: Topic
+    handler: Callable[[RobotLogger, Any], None]
+    rate_hz: float = 0.0
+    """At most this many messages per second reach the viewer (0 = all of them)."""
+    latest: bool = True
+    """Keep only the newest sample (state); False = keep every message in order (logs)."""
+
+
+STREAMS = (
+    Stream(keys.WHEELS, RobotLogger.wheels, rate_hz=20),  # 100 Hz on the bus
+    Stream(keys.ODOM_POSE, RobotLogger.odom, rate_hz=20),
+    Stream(keys.LOC_POSE, RobotLogger.loc, rate_hz=20),
+    Stream(keys.TRUTH, RobotLogger.truth, rate_hz=20),  # 50 Hz on the bus
+    Stream(keys.LANDMARKS, RobotLogger.landmarks, rate_hz=10),
+    Stream(keys.IMAGE, RobotLogger.image, rate_hz=10),
+    Stream(keys.BATTERY, RobotLogger.battery),
+    Stream(keys.HW_BATTERY, RobotLogger.battery_raw, rate_hz=5),
+    Stream(keys.LOOP, RobotLogger.loop),
+    Stream(keys.OLED_FRAME, RobotLogger.oled),  # no stamp; a few Hz at most
+    Stream(keys.LOG, RobotLogger.log, latest=False),  # every line matters
+)
+
+
+def world_markers(config: RobotConfig, log: logging.Logger) -> list[tuple[int, float, float, float, float]]:
+    """The landmark map of the config's world file as (id, x, y, size, yaw); [] if it cannot be read."""
+    try:
+        world = load_world(config.localizer.world)
+    except ConfigError as exc:  # a missing or bad world file costs the map its markers, nothing more
+        log.warning("the map shows no landmarks: %s", exc)
+        return []
+    return [(mk.id, mk.x, mk.y, mk.size, mk.yaw) for mk in world.markers]
+
+
+def open_recording(options: VizOptions, robots: list[str]) -> rr.RecordingStream:
+    """A Rerun recording with the sink the options ask for, and the default blueprint."""
+    rec = rr.RecordingStream(APP_ID)
+    layout = blueprint(robots)
+    if options.save:
+        rec.save(options.save, default_blueprint=layout)
+    elif options.serve:
+        url = rec.serve_grpc(grpc_port=options.grpc_port, default_blueprint=layout,
+                             server_memory_limit=options.memory_limit)
+        rr.serve_web_viewer(web_port=options.web_port, open_browser=False, connect_to=url)
+        print(f"viz: web viewer at http://localhost:{options.web_port}/?url={url}\n"
+              f"viz: native viewer: rerun {url}", flush=True)
+    else:
+        rec.spawn(memory_limit=options.memory_limit, default_blueprint=layout)
+    return rec
+
+
+class Viewer:
+    """The robots being shown: one `RobotLogger` and one task per stream for each."""
+
+    def __init__(self, node: Node, rec: rr.RecordingStream, tasks: asyncio.TaskGroup) -> None:
+        self.node = node
+        self.rec = rec
+        self.loggers: dict[str, RobotLogger] = {}
+        self._tasks = tasks
+        self._markers = world_markers(node.config, node.log)
+        self._warn = LimitedLog(node.log)
+
+    def add(self, robot: str) -> None:
+        """Start showing ``robot`` (nothing happens if it is shown already)."""
+        if robot in self.loggers:
+            return
+        logger = RobotLogger(self.rec, robot, capture_width=self.node.config.camera.width)
+        logger.setup()
+        logger.landmark_map(self._markers)
+        self.loggers[robot] = logger
+        for stream in STREAMS:
+            self._tasks.create_task(self._follow(logger, stream))
+        # A new robot gets its own tab; the layout is sent again with it.
+        self.rec.send_blueprint(blueprint(list(self.loggers)))
+        self.node.log.info("showing robot %r", robot)
+
+    async def _follow(self, logger: RobotLogger, stream: Stream) -> None:
+        sub = self.node.subscribe(stream.topic, robot=logger.robot, latest=stream.latest, maxsize=256)
+        decimator = Decimator(stream.rate_hz)
+        async for msg in sub:
+            stamp = getattr(msg, "stamp", None)
+            if stamp is not None and not decimator.keep(stamp):
+                continue
+            try:
+                stream.handler(logger, msg)
+            except Exception as exc:  # a message that decodes but cannot be drawn must not stop the viewer
+                self._warn.warning(f"{keys.key(logger.robot, stream.topic)}: dropped: {exc}")
+
+    async def discover(self) -> None:
+        """Add every robot that holds a liveliness token, now and whenever one appears."""
+        while True:
+            for token in await self.node.alive("*"):
+                robot, name = keys.split(token)  # name is "alive/<service>"
+                # A viewer's own token is not a robot (ours sits under the laptop config's name).
+                if name.rsplit("/", 1)[-1] != "viz":
+                    self.add(robot)
+            await asyncio.sleep(DISCOVERY_INTERVAL_S)
+
+
+async def main(config: RobotConfig, options: VizOptions) -> None:
+    """Show ``options.robot`` (or every robot found) until cancelled or ``options.duration`` is up."""
+    robots = [options.robot] if options.robot else []
+    rec = open_recording(options, robots)
+    try:
+        async with Node("viz", config) as node:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(options.duration), asyncio.TaskGroup() as tasks:
+                    viewer = Viewer(node, rec, tasks)
+                    if options.robot:
+                        viewer.add(options.robot)
+                    else:
+                        tasks.create_task(viewer.discover())
+    finally:
+        # Flush and close the sink even on SIGINT, so a recording ends with a complete file.
+        rec.flush()
+        rec.disconnect()

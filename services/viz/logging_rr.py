@@ -1,0 +1,271 @@
+"""Bus messages -> Rerun archetypes, for one robot.
+
+`RobotLogger` turns each icefloe message into Rerun log calls under the robot's
+own entity path, ``/robots/<name>/...``, so several robots can share one viewer:
+
+=================================  ==========================================  =====================
+entity (under /robots/<name>)      what                                        from
+=================================  ==========================================  =====================
+map/landmarks                      the world file's markers (static)           localizer.world
+map/odom, map/odom/trail           pose arrow and the path driven              odom/pose
+map/loc, map/loc/covariance        pose arrow and its 95 % ellipse             loc/pose
+map/truth, map/truth/trail         the simulator's true pose                   sim/truth
+map/rays                           a line to each marker seen in this frame    camera/landmarks
+camera/image, camera/image/markers the JPEG and the detected marker outlines   camera/image, .../landmarks
+oled                               the little screen, one pixel per pixel      oled/frame
+wheels/{left,right}/{target,measured}  commanded vs measured rim speed, m/s    hw/wheels
+battery/{voltage,current}/{filtered,raw}  V and A                              power/battery, hw/battery
+loop/latency_ms/{p50,p99,p999,max} hwbridge wake-up latency, ms                hw/loop
+loop/errors/{overruns,link_errors} counts since start                          hw/loop
+log                                log lines of every service                  log
+=================================  ==========================================  =====================
+
+Every message is logged at its own ``stamp`` on the ``stamp`` timeline, so what
+you scrub through is robot time, not the time the laptop happened to receive it.
+(``oled/frame`` has no stamp; it is logged at the time it arrived.)
+
+The geometry helpers (`covariance_ellipse`, `ray_ends`, `unpack_oled`, ...)
+are plain functions of numbers, so they are tested without Rerun or Zenoh.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Sequence
+
+import numpy as np
+import rerun as rr
+
+from icefloe.schemas import messages as m
+
+from .decimate import Decimator
+
+TIMELINE = "stamp"
+ARROW_LENGTH = 0.12
+"""Length of a pose arrow on the map, m (a little less than the robot)."""
+CHI2_95_2DOF = 5.991
+"""The 95 % quantile of chi-square with 2 degrees of freedom: the ellipse holds the robot 95 % of the time."""
+TRAIL_STEP = 0.01
+"""A trail gets a new point once the robot has moved this far, m (a parked robot adds nothing)."""
+TRAIL_POINTS = 2000
+TRAIL_RATE_HZ = 2.0
+"""The whole trail is re-logged at most this often: it is a picture, not a measurement."""
+
+ODOM_COLOR = (60, 140, 255)
+LOC_COLOR = (40, 200, 90)
+TRUTH_COLOR = (150, 150, 150)
+MARKER_COLOR = (230, 60, 60)
+RAY_COLOR = (250, 200, 40)
+TEXT_LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "error": "ERROR", "critical": "CRITICAL"}
+
+
+# --------------------------------------------------------------------------- geometry (pure)
+
+
+def heading(x: float, y: float, theta: float, length: float = ARROW_LENGTH) -> tuple[list[float], list[float]]:
+    """Origin and vector of an arrow for a pose."""
+    return [x, y], [length * math.cos(theta), length * math.sin(theta)]
+
+
+def covariance_ellipse(x: float, y: float, covariance: Sequence[float], points: int = 48) -> np.ndarray:
+    """Closed outline of the 95 % ellipse of the (x, y) part of a 3x3 row-major covariance.
+
+    The eigenvectors of the 2x2 block are the ellipse's axes and the square roots of
+    its eigenvalues the standard deviations along them.
+    """
+    if len(covariance) != 9:
+        raise ValueError(f"covariance: expected 9 numbers (3x3), got {len(covariance)}")
+    block = np.array([[covariance[0], covariance[1]], [covariance[3], covariance[4]]], dtype=float)
+    block = (block + block.T) / 2  # rounding can make it a hair asymmetric
+    values, vectors = np.linalg.eigh(block)
+    radii = np.sqrt(CHI2_95_2DOF * np.clip(values, 0.0, None))  # a negative variance is rounding, not data
+    t = np.linspace(0.0, 2 * math.pi, points + 1)
+    circle = np.stack([np.cos(t), np.sin(t)])  # 2 x N, the last point closes the loop
+    return (vectors @ (radii[:, None] * circle)).T + np.array([x, y])
+
+
+def ray_ends(x: float, y: float, theta: float, landmarks: Sequence[m.Landmark]) -> np.ndarray:
+    """Map positions of the landmarks seen from pose (x, y, theta), from their range and bearing."""
+    return np.array(
+        [[x + lm.range * math.cos(theta + lm.bearing), y + lm.range * math.sin(theta + lm.bearing)]
+         for lm in landmarks]
+    ).reshape(-1, 2)
+
+
+def marker_outline(corners: Sequence[float], scale: float = 1.0) -> np.ndarray | None:
+    """Closed outline of a detected marker from its 4 corners (x0, y0, ... y3), or None if malformed."""
+    if len(corners) != 8:
+        return None
+    quad = np.asarray(corners, dtype=float).reshape(4, 2) * scale
+    return np.vstack([quad, quad[:1]])
+
+
+def unpack_oled(width: int, height: int, pixels: bytes) -> np.ndarray:
+    """A height x width grey image (0 or 255) from 1-bit, row-major, MSB-first pixels."""
+    if width <= 0 or height <= 0:
+        raise ValueError(f"oled/frame: bad size {width}x{height}")
+    if len(pixels) * 8 < width * height:
+        raise ValueError(f"oled/frame: {len(pixels)} bytes cannot hold {width}x{height} pixels")
+    bits = np.unpackbits(np.frombuffer(pixels, dtype=np.uint8), bitorder="big")
+    return (bits[: width * height].reshape(height, width) * 255).astype(np.uint8)
+
+
+def marker_faces(markers: Sequence[tuple[float, float, float, float]]) -> list[np.ndarray]:
+    """Top-down segments of markers (x, y, size, yaw): a marker is a square on a wall, seen edge-on."""
+    faces = []
+    for x, y, size, yaw in markers:
+        # The marker faces along yaw, so its face runs perpendicular to it.
+        dx, dy = -math.sin(yaw) * size / 2, math.cos(yaw) * size / 2
+        faces.append(np.array([[x - dx, y - dy], [x + dx, y + dy]]))
+    return faces
+
+
+class Trail:
+    """The recent path of one pose source, thinned by distance."""
+
+    def __init__(self) -> None:
+        self.points: deque[tuple[float, float]] = deque(maxlen=TRAIL_POINTS)
+
+    def add(self, x: float, y: float) -> bool:
+        """Add a point if the robot moved; True if the trail changed."""
+        if self.points:
+            px, py = self.points[-1]
+            if math.hypot(x - px, y - py) < TRAIL_STEP:
+                return False
+        self.points.append((x, y))
+        return True
+
+
+# --------------------------------------------------------------------------- Rerun
+
+
+class RobotLogger:
+    """Logs one robot's messages to a Rerun recording under ``/robots/<name>``."""
+
+    def __init__(self, rec: rr.RecordingStream, robot: str, *, capture_width: int = 0) -> None:
+        self.rec = rec
+        self.robot = robot
+        self.root = f"robots/{robot}"
+        self.capture_width = capture_width
+        """Width of the frames the detector ran on; marker corners are in its pixels (0 = same as the image)."""
+        self._image_width = 0
+        self._trails = {"odom": Trail(), "loc": Trail(), "truth": Trail()}
+        self._trail_rate = {name: Decimator(TRAIL_RATE_HZ) for name in self._trails}
+        self._ray_pose: dict[str, tuple[float, float, float]] = {}
+
+    def _at(self, stamp: int) -> None:
+        self.rec.set_time(TIMELINE, timestamp=np.datetime64(stamp, "ns"))
+
+    def _log(self, path: str, *archetypes: rr.AsComponents, static: bool = False) -> None:
+        self.rec.log(f"{self.root}/{path}", *archetypes, static=static)
+
+    def setup(self) -> None:
+        """Static styling: series names and colours, so plots read well from the first point."""
+        for side in ("left", "right"):
+            self._log(f"wheels/{side}/target", rr.SeriesLines(names=f"{side} target", widths=1.5), static=True)
+            self._log(f"wheels/{side}/measured", rr.SeriesLines(names=f"{side} measured", widths=1.5),
+                      static=True)
+        for quantity in ("voltage", "current"):
+            self._log(f"battery/{quantity}/filtered", rr.SeriesLines(names="filtered"), static=True)
+            self._log(f"battery/{quantity}/raw", rr.SeriesPoints(names="raw", marker_sizes=1.5), static=True)
+
+    # ------------------------------------------------------------------ map
+
+    def landmark_map(self, markers: Sequence[tuple[int, float, float, float, float]]) -> None:
+        """The world file's markers (id, x, y, size, yaw), logged once as static data."""
+        if not markers:
+            return
+        self._log("map/landmarks",
+                  rr.Points2D([(x, y) for _, x, y, _, _ in markers], labels=[str(i) for i, *_ in markers],
+                              colors=MARKER_COLOR, radii=0.02, show_labels=True),
+                  static=True)
+        faces = marker_faces([(x, y, size, yaw) for _, x, y, size, yaw in markers])
+        self._log("map/landmarks/faces", rr.LineStrips2D(faces, colors=MARKER_COLOR, radii=0.01), static=True)
+
+    def _pose(self, name: str, stamp: int, x: float, y: float, theta: float, color: tuple[int, int, int]) -> None:
+        self._at(stamp)
+        origin, vector = heading(x, y, theta)
+        self._log(f"map/{name}", rr.Arrows2D(origins=[origin], vectors=[vector], colors=color, radii=0.012,
+                                             labels=name))
+        trail = self._trails.get(name)
+        if trail is not None and trail.add(x, y) and self._trail_rate[name].keep(stamp):
+            self._log(f"map/{name}/trail", rr.LineStrips2D([list(trail.points)], colors=color, radii=0.004))
+        self._ray_pose[name] = (x, y, theta)
+
+    def odom(self, msg: m.Pose) -> None:
+        self._pose("odom", msg.stamp, msg.x, msg.y, msg.theta, ODOM_COLOR)
+
+    def truth(self, msg: m.Truth) -> None:
+        self._pose("truth", msg.stamp, msg.x, msg.y, msg.theta, TRUTH_COLOR)
+
+    def loc(self, msg: m.PoseEstimate) -> None:
+        self._pose("loc", msg.stamp, msg.x, msg.y, msg.theta, LOC_COLOR)
+        outline = covariance_ellipse(msg.x, msg.y, msg.covariance)  # ValueError: dropped by the caller
+        self._log("map/loc/covariance", rr.LineStrips2D([outline], colors=LOC_COLOR, radii=0.004))
+
+    def landmarks(self, msg: m.Landmarks) -> None:
+        """Rays on the map and outlines on the camera image, for the markers seen in one frame."""
+        self._at(msg.stamp)
+        # Rays start at the best pose we have: the localizer's (map frame), else odometry's.
+        pose = self._ray_pose.get("loc") or self._ray_pose.get("odom")
+        if pose is not None:
+            x, y, _ = pose
+            ends = ray_ends(*pose, msg.landmarks)
+            # An empty list still gets logged: it clears the rays of the previous frame.
+            self._log("map/rays", rr.LineStrips2D([[(x, y), tuple(end)] for end in ends], colors=RAY_COLOR,
+                                                  radii=0.003, labels=[str(lm.id) for lm in msg.landmarks]))
+        scale = self._image_width / self.capture_width if self.capture_width and self._image_width else 1.0
+        outlines, labels = [], []
+        for lm in msg.landmarks:
+            outline = marker_outline(lm.corners, scale)
+            if outline is not None:
+                outlines.append(outline)
+                labels.append(str(lm.id))
+        self._log("camera/image/markers",
+                  rr.LineStrips2D(outlines, labels=labels, colors=RAY_COLOR, radii=1.0, show_labels=True))
+
+    # ------------------------------------------------------------------ camera and screen
+
+    def image(self, msg: m.Image) -> None:
+        self._at(msg.stamp)
+        self._image_width = msg.width
+        # The JPEG goes to the viewer as it is: decoding it here would only cost the laptop CPU.
+        self._log("camera/image", rr.EncodedImage(contents=msg.data, media_type="image/jpeg"))
+
+    def oled(self, msg: m.OledFrame, received_ns: int | None = None) -> None:
+        pixels = unpack_oled(msg.width, msg.height, msg.pixels)  # ValueError: dropped by the caller
+        self._at(received_ns if received_ns is not None else time.time_ns())
+        self._log("oled", rr.Image(pixels, color_model="L"))
+
+    # ------------------------------------------------------------------ time series
+
+    def wheels(self, msg: m.Wheels) -> None:
+        self._at(msg.stamp)
+        self._log("wheels/left/target", rr.Scalars(msg.target_left))
+        self._log("wheels/left/measured", rr.Scalars(msg.speed_left))
+        self._log("wheels/right/target", rr.Scalars(msg.target_right))
+        self._log("wheels/right/measured", rr.Scalars(msg.speed_right))
+
+    def battery(self, msg: m.Battery) -> None:
+        self._at(msg.stamp)
+        self._log("battery/voltage/filtered", rr.Scalars(msg.voltage))
+        self._log("battery/current/filtered", rr.Scalars(msg.current))
+
+    def battery_raw(self, msg: m.BatteryReading) -> None:
+        self._at(msg.stamp)
+        self._log("battery/voltage/raw", rr.Scalars(msg.voltage))
+        self._log("battery/current/raw", rr.Scalars(msg.current))
+
+    def loop(self, msg: m.LoopStats) -> None:
+        self._at(msg.stamp)
+        for name, seconds in (("p50", msg.latency_p50), ("p99", msg.latency_p99),
+                              ("p999", msg.latency_p999), ("max", msg.latency_max)):
+            self._log(f"loop/latency_ms/{name}", rr.Scalars(seconds * 1e3))
+        self._log("loop/errors/overruns", rr.Scalars(msg.overruns))
+        self._log("loop/errors/link_errors", rr.Scalars(msg.link_errors))
+
+    def log(self, msg: m.Log) -> None:
+        self._at(msg.stamp)
+        self._log("log", rr.TextLog(f"[{msg.service}] {msg.text}", level=TEXT_LEVELS.get(msg.level, "INFO")))

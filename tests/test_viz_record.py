@@ -1,0 +1,78 @@
+"""viz as a real process: a test publisher sends every message type, viz records, we read the .rrd back."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+from conftest import wait_for
+
+from icefloe.schemas import keys
+from icefloe.services.viz.demo import DemoRobot, publish
+from icefloe.services.viz.readback import read_rrd, read_static
+from icefloe.worldmap import load_world
+
+
+async def test_records_every_stream_with_the_published_values(robot, tmp_path):
+    out = tmp_path / "out.rrd"
+    viz = robot.start_module("icefloe.services.viz", "--save", str(out))
+    sent: dict[str, dict[int, object]] = {}
+    async with robot.node("tester") as node:
+        await wait_for(lambda: viz.output.count("showing robot") > 0, timeout=20)
+        demo = DemoRobot(robot.config, load_world(robot.config.localizer.world).markers)
+        bad = node.session.declare_publisher(node.key(keys.WHEELS))
+        await publish(node, demo, duration=4.0,
+                      sent=lambda t, msg: sent.setdefault(t.name, {}).__setitem__(getattr(msg, "stamp", 0), msg))
+        bad.put(b"\xc1 not msgpack")  # must be dropped with a log line, viz keeps going
+        await asyncio.sleep(0.5)
+        bad.undeclare()
+    assert viz.alive(), viz.output
+    assert viz.stop() == 0, viz.output
+    assert "dropped" in viz.output
+
+    data = read_rrd(out)
+    root = f"/robots/{robot.name}"
+    for entity in ("map/odom", "map/loc", "map/loc/covariance", "map/truth", "map/rays", "camera/image",
+                   "camera/image/markers", "oled", "wheels/left/target", "wheels/right/measured",
+                   "battery/voltage/filtered", "battery/current/raw", "loop/latency_ms/p99",
+                   "loop/errors/overruns", "log"):
+        assert data.get(f"{root}/{entity}", {}).get("log_time"), f"{entity} missing from the recording"
+
+    # Every logged odometry pose is the one published with that stamp, and the pose moved.
+    odom = data[f"{root}/map/odom"]
+    for stamp, origins in zip(odom["stamp"], odom["Arrows2D:origins"], strict=True):
+        pose = sent["odom/pose"][stamp]
+        assert math.isclose(origins[0][0], pose.x, abs_tol=1e-5) and math.isclose(origins[0][1], pose.y, abs_tol=1e-5)
+    first, last = odom["Arrows2D:origins"][0][0], odom["Arrows2D:origins"][-1][0]
+    assert math.dist(first, last) > 0.3
+    # hw/wheels at 100 Hz reaches the viewer decimated to about 20 Hz.
+    wheels = data[f"{root}/wheels/left/target"]
+    assert 0 < len(wheels["stamp"]) < len(sent["hw/wheels"]) / 3
+    assert wheels["Scalars:scalars"][-1][0] == sent["hw/wheels"][wheels["stamp"][-1]].target_left
+    # The landmark map from the world file is static data.
+    landmarks = read_static(out)[f"{root}/map/landmarks"]
+    assert len(landmarks["Points2D:positions"][0]) == len(demo.markers)
+
+
+async def test_discovers_two_robots_and_follows_only_the_one_asked_for(make_robot, tmp_path):
+    import msgspec
+
+    from icefloe.runtime import Node
+
+    robot = make_robot()
+    other = msgspec.structs.replace(robot.config, name=f"{robot.name}b")
+    every, only = tmp_path / "every.rrd", tmp_path / "only.rrd"
+    async with robot.node("tester") as a, Node("tester", other) as b:
+        viz_all = robot.start_module("icefloe.services.viz", "--save", str(every), name="viz-all")
+        viz_one = robot.start_module("icefloe.services.viz", "--save", str(only), "--robot", other.name,
+                                     name="viz-one")
+        await wait_for(lambda: viz_all.output.count("showing robot") >= 2 and "showing" in viz_one.output,
+                       timeout=20)
+        demo = DemoRobot(robot.config, ())
+        rates = {keys.ODOM_POSE: 20.0}
+        await asyncio.gather(publish(a, demo, 2.0, rates=rates), publish(b, demo, 2.0, rates=rates))
+        await asyncio.sleep(0.5)
+    assert viz_all.stop() == 0 and viz_one.stop() == 0
+    got_all, got_one = read_rrd(every), read_rrd(only)
+    assert f"/robots/{robot.name}/map/odom" in got_all and f"/robots/{other.name}/map/odom" in got_all
+    assert f"/robots/{other.name}/map/odom" in got_one and f"/robots/{robot.name}/map/odom" not in got_one
