@@ -239,8 +239,14 @@ class Zenoh(Section):
     user: str = ""
     """Zenoh user (normally read from `credentials`)."""
     password: str = ""
+    tls_certificate: str = ""
+    """Router: this robot's TLS certificate (PEM), for ``tls/...`` endpoints in ``listen`` (docs/lab.md)."""
+    tls_private_key: str = ""
+    """Router: the certificate's private key (PEM)."""
+    tls_root_ca: str = ""
+    """Clients: the lab's CA certificate (PEM), to trust a router on a ``tls/...`` endpoint."""
     config: str = ""
-    """Extra Zenoh JSON5 config file merged into the router's (e.g. TLS listeners)."""
+    """Extra Zenoh JSON5 config file merged into the router's."""
 
 
 class RobotConfig(Section):

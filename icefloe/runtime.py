@@ -81,6 +81,12 @@ def zenoh_config(
     zc.insert_json5("scouting/multicast/enabled", "false")
     zc.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
     zc.insert_json5("listen/endpoints", json.dumps(list(listen or [])))
+    z = config.zenoh
+    if mode == "router" and z.tls_certificate:
+        zc.insert_json5("transport/link/tls/listen_certificate", json.dumps(z.tls_certificate))
+        zc.insert_json5("transport/link/tls/listen_private_key", json.dumps(z.tls_private_key))
+    if z.tls_root_ca:
+        zc.insert_json5("transport/link/tls/root_ca_certificate", json.dumps(z.tls_root_ca))
     user, password = config.zenoh.user, config.zenoh.password
     if not user and (guest or config.zenoh.access_control):
         user, password = GUEST_USER, GUEST_PASSWORD

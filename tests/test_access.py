@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -11,6 +12,7 @@ import msgspec
 import pytest
 from conftest import ROOT, Robot
 
+from icefloe import config as config_mod
 from icefloe.credentials import make, read
 from icefloe.errors import NotReachable
 from icefloe.runtime import Node
@@ -114,3 +116,50 @@ def test_a_guarded_router_without_credentials_refuses_to_start(tmp_path: Path) -
                          capture_output=True, text=True, cwd=ROOT, timeout=30)
     assert res.returncode != 0
     assert "access_control is on but there are no credentials" in res.stderr
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is not installed")
+async def test_tls_with_the_lab_ca_and_credentials(tmp_path: Path) -> None:
+    """The router listens on TLS; a laptop that trusts the lab CA and has the credentials drives it."""
+    from conftest import free_port
+
+    make_certificates(tmp_path)
+    port = free_port()
+    creds, _ = make(tmp_path / "r.credentials", "tlsbot")
+    cfg = tmp_path / "r.toml"
+    cfg.write_text(
+        f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "tlsbot"\nrun_dir = "{tmp_path}/run"\n'
+        f'[zenoh]\nlisten = ["tls/127.0.0.1:{port}"]\nconnect = ["tls/localhost:{port}"]\n'
+        f'access_control = true\ncredentials = "{creds}"\n'
+        f'tls_certificate = "{tmp_path}/robot.pem"\ntls_private_key = "{tmp_path}/robot.key"\n'
+        f'tls_root_ca = "{tmp_path}/ca.pem"\n'
+    )
+    router = subprocess.Popen([sys.executable, "-m", "icefloe.router", "--config", str(cfg)], cwd=ROOT,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert "listening on tls/" in router.stdout.readline()
+        robot_cfg = config_mod.load(cfg)
+        async with Node("service", robot_cfg) as service, Node("laptop", robot_cfg, announce=False) as laptop:
+            twist = service.subscribe(keys.TWIST)
+            assert await reaches(laptop, twist, keys.TWIST, m.Twist(v=0.1, w=0.0))
+        untrusting = msgspec.structs.replace(robot_cfg, zenoh=msgspec.structs.replace(robot_cfg.zenoh, tls_root_ca=""))
+        with pytest.raises(NotReachable):  # a laptop that does not trust the lab CA cannot connect
+            async with Node("laptop", untrusting, retry=False, announce=False):
+                pass
+    finally:
+        router.terminate()
+        router.wait(10)
+
+
+def make_certificates(folder: Path) -> None:
+    """A lab CA and a robot certificate for localhost, as docs/lab.md tells a TA to make them."""
+    def openssl(*args: str) -> None:
+        subprocess.run(["openssl", *args], cwd=folder, check=True, capture_output=True)
+
+    openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.pem",
+            "-days", "3650", "-subj", "/CN=icefloe lab CA")
+    openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", "robot.key", "-out", "robot.csr",
+            "-subj", "/CN=localhost")
+    (folder / "san.cnf").write_text("subjectAltName=DNS:localhost,IP:127.0.0.1\n")
+    openssl("x509", "-req", "-in", "robot.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
+            "-out", "robot.pem", "-days", "3650", "-extfile", "san.cnf")
