@@ -217,6 +217,8 @@ def _parser() -> argparse.ArgumentParser:
     creds.add_argument("config", nargs="?")
     creds.add_argument("--host", help="the robot's address, written into the file for laptops")
     creds.add_argument("--replace", action="store_true", help="make a new password even if one exists")
+    creds.add_argument("--sheet", action="store_true",
+                       help="print a sheet with the password, to hand to whoever has the robot")
     bus("status", "which services are alive")
     bus("topics", "keys seen, with rates").add_argument("--duration", type=float, default=3.0)
     echo = bus("echo", "print decoded messages as JSON lines")
@@ -300,8 +302,16 @@ def _credentials(args: argparse.Namespace) -> int:
     port = cfg.zenoh.listen[0].rsplit(":", 1)[-1] if cfg.zenoh.listen else "7447"
     connect = [f"tcp/{args.host}:{port}"] if args.host else []
     path, created = make(cfg.zenoh.credentials, cfg.name, connect, replace=args.replace)
-    # The password is never printed: whoever has the robot in hand reads the file (or the OLED).
+    # The password is printed only on request (--sheet), never logged.
     print(f"{'made' if created else 'kept'} {path} for robot {cfg.name!r} (mode 0600)")
+    if args.sheet:
+        from .credentials import read
+
+        c = read(path)
+        print(f"\n  icefloe robot {c.robot!r}\n  user:     {c.user}\n  password: {c.password}\n"
+              f"  connect:  {', '.join(c.connect) or '(the robot address), port 7447'}\n\n"
+              f"  Save these four lines as {c.robot}.credentials and run\n"
+              f"  icefloe status --credentials {c.robot}.credentials\n")
     return 0
 
 

@@ -105,6 +105,8 @@ def test_credentials_are_made_once_private_and_never_printed(tmp_path: Path) -> 
     assert made.password not in first.stdout + first.stderr
     again = subprocess.run(run, capture_output=True, text=True, cwd=ROOT, timeout=30)
     assert "kept" in again.stdout and read(creds).password == made.password
+    sheet = subprocess.run([*run, "--sheet"], capture_output=True, text=True, cwd=ROOT, timeout=30)
+    assert f"password: {made.password}" in sheet.stdout  # only when asked for, to hand over
 
 
 def test_a_guarded_router_without_credentials_refuses_to_start(tmp_path: Path) -> None:
