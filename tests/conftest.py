@@ -38,6 +38,17 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def robot_config(folder: Path, name: str, extra_toml: str = "") -> Path:
+    """A robot config on a free port with no router started (for tests of `icefloe up` itself)."""
+    port = free_port()
+    path = folder / f"{name}.toml"
+    path.write_text(
+        f'extends = "{SIM_CONFIG}"\nname = "{name}{port}"\nrun_dir = "{folder}/run-{name}"\n{extra_toml}\n'
+        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
+    )
+    return path
+
+
 class Proc:
     """A service running as a real process; its output goes to a log file in the test's tmp dir."""
 

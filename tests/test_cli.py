@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, Robot, processes_naming
+from conftest import ROOT, Robot, processes_naming, robot_config
 
 ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
 
@@ -21,14 +21,17 @@ def icefloe(robot: Robot, *args: str, timeout: float = 20.0) -> subprocess.Compl
                           text=True, timeout=timeout, cwd=ROOT)
 
 
-def wait_alive(robot: Robot, service: str, timeout: float = 15.0) -> str:
+def wait_alive(robot: Robot | Path, service: str, timeout: float = 15.0) -> str:
+    """Wait until `icefloe status` lists ``service`` on the robot (a test robot or a config file)."""
+    config = robot if isinstance(robot, Path) else robot.config_path
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        out = icefloe(robot, "status").stdout
+        out = subprocess.run([*ICEFLOE, "status", "--config", str(config)], capture_output=True, text=True,
+                             timeout=20, cwd=ROOT).stdout
         if service in out.split():
             return out
         time.sleep(0.2)
-    raise AssertionError(f"{service} not alive on {robot.name}: {out!r}")
+    raise AssertionError(f"{service} not alive on {config}: {out!r}")
 
 
 def test_two_processes_exchange_a_message(robot: Robot) -> None:
@@ -88,26 +91,17 @@ def test_up_rejects_a_bad_config_and_starts_nothing(tmp_path: Path) -> None:
 
 
 def test_up_runs_restarts_and_stops_everything(tmp_path: Path) -> None:
-    from conftest import free_port
-
-    port = free_port()
-    cfg = tmp_path / "up.toml"
-    cfg.write_text(
-        f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "uptest{port}"\nservices = ["info", "nosuch"]\n'
-        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-    )
-    robot = Robot.__new__(Robot)
-    robot.config_path = cfg
+    cfg = robot_config(tmp_path, "uptest", 'services = ["info", "nosuch"]')
     out = open(tmp_path / "up.log", "w+")  # noqa: SIM115
     up = subprocess.Popen([*ICEFLOE, "up", str(cfg), "--no-viz"], stdout=out, stderr=subprocess.STDOUT,
                           cwd=ROOT, start_new_session=True)
     try:
-        wait_alive(robot, "info")
-        wait_alive(robot, "router")
+        wait_alive(cfg, "info")
+        wait_alive(cfg, "router")
         info_pid = next(p for p in processes_naming(str(cfg)) if p in processes_naming("icefloe.services.info"))
         os.kill(info_pid, signal.SIGKILL)  # a crash
         time.sleep(0.5)
-        wait_alive(robot, "info")
+        wait_alive(cfg, "info")
         up.send_signal(signal.SIGINT)
         assert up.wait(20) == 0
         time.sleep(0.2)
@@ -124,19 +118,10 @@ def test_up_runs_restarts_and_stops_everything(tmp_path: Path) -> None:
 
 
 def test_services_stop_when_up_is_killed(tmp_path: Path) -> None:
-    from conftest import free_port
-
-    port = free_port()
-    cfg = tmp_path / "killed.toml"
-    cfg.write_text(
-        f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "killed{port}"\nservices = ["info"]\n'
-        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-    )
-    robot = Robot.__new__(Robot)
-    robot.config_path = cfg
+    cfg = robot_config(tmp_path, "killed", 'services = ["info"]')
     up = subprocess.Popen([*ICEFLOE, "up", str(cfg), "--no-viz"], stdout=subprocess.DEVNULL,
                           stderr=subprocess.DEVNULL, cwd=ROOT)
-    wait_alive(robot, "info")
+    wait_alive(cfg, "info")
     up.kill()  # SIGKILL: no chance to clean up
     up.wait()
     deadline = time.monotonic() + 10

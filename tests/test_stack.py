@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from conftest import ROOT, free_port, processes_naming
+from conftest import ROOT, free_port, processes_naming, robot_config
 
 from icefloe import config as config_mod
 from icefloe.launcher import available
@@ -19,13 +19,7 @@ ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
 
 
 def test_the_default_stack_runs_reports_and_stops_cleanly(tmp_path: Path) -> None:
-    port = free_port()
-    cfg = tmp_path / "stack.toml"
-    cfg.write_text(
-        f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "stack{port}"\nrun_dir = "{tmp_path}/run"\n'
-        f'[webapi]\nport = {free_port()}\n'
-        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-    )
+    cfg = robot_config(tmp_path, "stack", f"[webapi]\nport = {free_port()}\n")
     expected = [s for s in config_mod.load(cfg).services if available(s)]
     log = open(tmp_path / "up.log", "w+")  # noqa: SIM115
     echo = open(tmp_path / "echo.log", "w+")  # noqa: SIM115
