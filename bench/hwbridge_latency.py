@@ -277,6 +277,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=int, default=60)
     parser.add_argument("--flood-hz", type=float, default=10_000)
+    parser.add_argument("--wheels-hz", type=float, default=100.0,
+                        help="hwbridge.wheels_rate_hz: rate of hw/wheels (0 = every cycle)")
     parser.add_argument("--penguinpi", action="store_true",
                         help="run the simulated PenguinPi instead: serial exchange rate achieved")
     args = parser.parse_args()
@@ -291,8 +293,8 @@ def main() -> None:
     config_path.write_text(
         f'extends = "{ROOT / "deploy/robots/sim.toml"}"\nname = "bench{os.getpid()}"\n'
         f'run_dir = "{tmp}"\n[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 2\n'
-        f'sim_socket = "{tmp}/board.sock"\n[zenoh]\nlisten = ["{endpoint}"]\n'
-        f'connect = ["{endpoint}"]\n')
+        f'sim_socket = "{tmp}/board.sock"\n[hwbridge]\nwheels_rate_hz = {args.wheels_hz}\n'
+        f'[zenoh]\nlisten = ["{endpoint}"]\nconnect = ["{endpoint}"]\n')
     ctx = mp.get_context("spawn")
     sample_ns = ctx.Array("q", SLOTS, lock=False)
     zero_ns = ctx.Array("q", MAX_STOPS, lock=False)
