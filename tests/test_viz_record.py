@@ -50,8 +50,11 @@ async def test_records_every_stream_with_the_published_values(robot, tmp_path):
     assert 0 < len(wheels["stamp"]) < len(sent["hw/wheels"]) / 3
     assert wheels["Scalars:scalars"][-1][0] == sent["hw/wheels"][wheels["stamp"][-1]].target_left
     # The landmark map from the world file is static data.
-    landmarks = read_static(out)[f"{root}/map/landmarks"]
+    static = read_static(out)
+    landmarks = static[f"{root}/map/landmarks"]
     assert len(landmarks["Points2D:positions"][0]) == len(demo.markers)
+    # Rerun's 2D views put +y down: the map hangs under a y flip so it reads as a plan (x right, y up).
+    assert static[f"{root}/map"]["Transform3D:scale"] == [[[1.0, -1.0, 1.0]]]
 
 
 async def test_discovers_two_robots_and_follows_only_the_one_asked_for(make_robot, tmp_path):

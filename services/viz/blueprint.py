@@ -42,7 +42,8 @@ def robot_layout(robot: str) -> rrb.Horizontal:
     root = f"/robots/{robot}"
     return rrb.Horizontal(
         rrb.Vertical(
-            rrb.Spatial2DView(origin=f"{root}/map", name=f"{robot}: map (m)"),
+            # Rooted above the map, so the map's y flip (logging_rr.MAP_FLIP) applies: x right, y up.
+            rrb.Spatial2DView(origin=root, contents="$origin/map/**", name=f"{robot}: map (m)"),
             rrb.TextLogView(origin=f"{root}/log", name="log"),
             row_shares=[3, 1],
         ),

@@ -6,6 +6,7 @@ own entity path, ``/robots/<name>/...``, so several robots can share one viewer:
 =================================  ==========================================  =====================
 entity (under /robots/<name>)      what                                        from
 =================================  ==========================================  =====================
+map                                y flip: the map reads x right, y up (static)
 map/landmarks                      the world file's markers (static)           localizer.world
 map/odom, map/odom/trail           pose arrow and the path driven              odom/pose
 map/loc, map/loc/covariance        pose arrow and its 95 % ellipse             loc/pose
@@ -43,6 +44,10 @@ from icefloe.schemas import messages as m
 from .decimate import Decimator
 
 TIMELINE = "stamp"
+MAP_FLIP = (1.0, -1.0, 1.0)
+"""Scale of ``map`` relative to the robot's root. Rerun's 2D views put +y down; the map view is
+rooted one level up (``blueprint.py``), so this flip makes the world's +y point up on screen and
+an anticlockwise turn look anticlockwise. Logged values stay in world coordinates."""
 ARROW_LENGTH = 0.12
 """Length of a pose arrow on the map, m (a little less than the robot)."""
 CHI2_95_2DOF = 5.991
@@ -162,7 +167,8 @@ class RobotLogger:
         self.rec.log(f"{self.root}/{path}", *archetypes, static=static)
 
     def setup(self) -> None:
-        """Static styling: series names and colours, so plots read well from the first point."""
+        """Static data: the map's y flip, series names and colours, so plots read well from the first point."""
+        self._log("map", rr.Transform3D(scale=MAP_FLIP), static=True)
         for side in ("left", "right"):
             self._log(f"wheels/{side}/target", rr.SeriesLines(names=f"{side} target", widths=1.5), static=True)
             self._log(f"wheels/{side}/measured", rr.SeriesLines(names=f"{side} measured", widths=1.5),
