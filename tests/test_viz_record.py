@@ -79,3 +79,38 @@ async def test_discovers_two_robots_and_follows_only_the_one_asked_for(make_robo
     got_all, got_one = read_rrd(every), read_rrd(only)
     assert f"/robots/{robot.name}/map/odom" in got_all and f"/robots/{other.name}/map/odom" in got_all
     assert f"/robots/{other.name}/map/odom" in got_one and f"/robots/{robot.name}/map/odom" not in got_one
+
+
+async def test_records_the_simulated_robot_driving(robot, tmp_path):
+    """The real simulated stack (sim, hwbridge, odometry, localizer, camera, power, oled) and viz."""
+    from icefloe.schemas import messages as m
+
+    services = ["sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled"]
+    procs = [robot.start(s) for s in services]
+    out = tmp_path / "sim.rrd"
+    async with robot.node("tester") as node:
+        alive = {keys.alive_key(robot.name, s) for s in services}
+        deadline = asyncio.get_running_loop().time() + 40
+        while not alive <= set(await node.alive()) and asyncio.get_running_loop().time() < deadline:
+            await asyncio.sleep(0.5)
+        viz = robot.start_module("icefloe.services.viz", "--save", str(out))
+        await wait_for(lambda: "showing robot" in viz.output, timeout=20)
+        twist = node.publisher(keys.TWIST)
+        for _ in range(50):  # 5 s of a gentle arc
+            twist.put(m.Twist(v=0.15, w=0.4))
+            await asyncio.sleep(0.1)
+        node.publisher(keys.STOP).put(m.Stop())
+        node.session.put(node.key(keys.TWIST), b'{"v": "fast"}', encoding="application/json")  # a log line
+        await asyncio.sleep(1.0)
+    assert viz.stop() == 0, viz.output
+    for proc in procs:
+        assert proc.alive(), proc.output
+    data = read_rrd(out)
+    root = f"/robots/{robot.name}"
+    for entity in ("map/odom", "map/loc", "map/truth", "camera/image", "oled", "wheels/left/target",
+                   "wheels/left/measured", "battery/voltage/filtered", "loop/latency_ms/p99", "log"):
+        assert data.get(f"{root}/{entity}", {}).get("log_time"), f"{entity} missing from the recording"
+    for entity in ("map/odom", "map/truth"):  # the robot was driven: its pose moved
+        origins = [row[0] for row in data[f"{root}/{entity}"]["Arrows2D:origins"] if row]
+        assert math.dist(origins[0], origins[-1]) > 0.2, entity
+    assert max(v[0] for v in data[f"{root}/wheels/left/measured"]["Scalars:scalars"] if v) > 0.05
