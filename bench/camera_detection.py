@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
-import socket
 import statistics
 import subprocess
 import sys
@@ -27,6 +26,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from common import robot_config
 
 from icefloe import config as config_mod
 from icefloe.runtime import Node
@@ -113,14 +113,7 @@ def main() -> None:
         folder.mkdir()
         for i, f in enumerate(frames[:60]):
             cv2.imwrite(str(folder / f"{i:04d}.png"), f)
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        config_path = Path(tmp) / "bench.toml"
-        config_path.write_text(
-            f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "cambench"\n'
-            f'[camera]\nsource = "{folder}"\nfps = 30.0\n'
-            f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n')
+        config_path = robot_config(Path(tmp), "cambench", f'[camera]\nsource = "{folder}"\nfps = 30.0\n')
         py = [sys.executable, "-m"]
         procs = [subprocess.Popen([*py, "icefloe.router", "--config", str(config_path)],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]

@@ -43,6 +43,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import robot_config
+
 ROOT = Path(__file__).resolve().parent.parent
 SLOTS = 1 << 17
 """Sample-time slots: one per encoder count (one count per exchange: 131 s at 1 kHz)."""
@@ -285,16 +287,9 @@ def main() -> None:
     if args.penguinpi:
         return penguinpi_main(args)
     tmp = Path(tempfile.mkdtemp(prefix="hwbridge-bench-"))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    endpoint = f"tcp/127.0.0.1:{port}"
-    config_path = tmp / "bench.toml"
-    config_path.write_text(
-        f'extends = "{ROOT / "deploy/robots/sim.toml"}"\nname = "bench{os.getpid()}"\n'
-        f'run_dir = "{tmp}"\n[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 2\n'
-        f'sim_socket = "{tmp}/board.sock"\n[hwbridge]\nwheels_rate_hz = {args.wheels_hz}\n'
-        f'[zenoh]\nlisten = ["{endpoint}"]\nconnect = ["{endpoint}"]\n')
+    config_path = robot_config(tmp, f"bench{os.getpid()}",
+                               f'[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 2\n'
+                               f'sim_socket = "{tmp}/board.sock"\n[hwbridge]\nwheels_rate_hz = {args.wheels_hz}\n')
     ctx = mp.get_context("spawn")
     sample_ns = ctx.Array("q", SLOTS, lock=False)
     zero_ns = ctx.Array("q", MAX_STOPS, lock=False)
@@ -357,14 +352,7 @@ def main() -> None:
 
 def penguinpi_main(args: argparse.Namespace) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="hwbridge-bench-ppi-"))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    endpoint = f"tcp/127.0.0.1:{port}"
-    config_path = tmp / "bench.toml"
-    config_path.write_text(
-        f'extends = "{ROOT / "deploy/robots/sim.toml"}"\nname = "bench{os.getpid()}"\n'
-        f'run_dir = "{tmp}"\n[zenoh]\nlisten = ["{endpoint}"]\nconnect = ["{endpoint}"]\n')
+    config_path = robot_config(tmp, f"bench{os.getpid()}")
     procs, logs = [], []
     for module in ("icefloe.router", "icefloe.services.sim", "icefloe.services.hwbridge"):
         log = open(tmp / f"{module.rsplit('.', 1)[-1]}.log", "wb")  # noqa: SIM115

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import socket
 import statistics
 import subprocess
 import sys
@@ -29,17 +28,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import robot_config
+
 ROOT = Path(__file__).resolve().parent.parent
 VARIANTS = ("raw", "raw-fifo", "runtime")
-
-
-def _config(port: int) -> Path:
-    path = Path(tempfile.mkdtemp()) / "bench.toml"
-    path.write_text(
-        f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "bench"\n'
-        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-    )
-    return path
 
 
 def _receive(config_path: str, variant: str, count: int) -> list[int]:
@@ -170,10 +162,7 @@ def main() -> None:
         _send(args.config, args.variant, args.count, args.rate)
         return
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    config_path = _config(port)
+    config_path = robot_config(Path(tempfile.mkdtemp()), "bench")
     router = subprocess.Popen([sys.executable, "-m", "icefloe.router", "--config", str(config_path)],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     time.sleep(1.0)

@@ -14,12 +14,13 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from common import free_port, robot_config
 
 ROOT = Path(__file__).resolve().parent.parent
 TICKS = os.sysconf("SC_CLK_TCK")
@@ -70,18 +71,7 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=20.0)
     p.add_argument("--drive", action="store_true", help="drive in a circle during the window")
     args = p.parse_args()
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    tmp = Path(tempfile.mkdtemp())
-    config = tmp / "stack.toml"
-    web = socket.socket()
-    web.bind(("127.0.0.1", 0))
-    web_port = web.getsockname()[1]
-    web.close()
-    config.write_text(f'extends = "{ROOT}/deploy/robots/sim.toml"\nname = "cpubench"\nrun_dir = "{tmp}/run"\n'
-                      f'[webapi]\nport = {web_port}\n'
-                      f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n')
+    config = robot_config(Path(tempfile.mkdtemp()), "cpubench", f"[webapi]\nport = {free_port()}\n")
     icefloe = [sys.executable, "-m", "icefloe.cli"]
     up = subprocess.Popen([*icefloe, "up", str(config), "--no-viz"], stdout=subprocess.DEVNULL,
                           stderr=subprocess.DEVNULL, start_new_session=True)
