@@ -22,13 +22,12 @@ World frame: x and y on the floor, z up, angles counter-clockwise from +x.
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
 import msgspec
 
-from .config import field_error
+from .config import field_error, read_toml
 from .errors import ConfigError
 
 WORLDS_DIR = Path(__file__).resolve().parent.parent / "deploy" / "worlds"
@@ -85,12 +84,4 @@ def load_world(name_or_path: str) -> WorldMap:
     path = Path(name_or_path)
     if len(path.parts) == 1 and not path.exists():
         path = WORLDS_DIR / (name_or_path if path.suffix else f"{name_or_path}.toml")
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such world file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read: {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-    return parse_world(data, str(path))
+    return parse_world(read_toml(path, "world file"), str(path))
