@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import bisect
 import contextlib
 import multiprocessing as mp
 import os
@@ -42,6 +43,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 from common import robot_config
 
@@ -115,10 +117,11 @@ def flood_process(config_path: str, rate_hz: float) -> None:
     import zenoh
 
     from icefloe import config as config_mod
-    from icefloe.runtime import zenoh_config
+    from icefloe.runtime import SERVICE_ZENOH_RUNTIME, zenoh_config
     from icefloe.schemas import codec, keys
     from icefloe.schemas import messages as m
 
+    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
     config = config_mod.load(config_path)
     session = zenoh.open(zenoh_config(config, connect=config.zenoh.connect))
     pub = session.declare_publisher(keys.key(config.name, keys.LEDARRAY))
@@ -130,6 +133,30 @@ def flood_process(config_path: str, rate_hz: float) -> None:
             pub.put(payload)
             sent += 1
         time.sleep(0.001)
+
+
+def hop_process(config_path: str, hop_ns, hop_count, ready) -> None:
+    """Reference: a raw zenoh-python subscriber to ``cmd/stop`` that takes the time in its
+    callback. Its delay is the bus's share of command -> wire, measured in the same run."""
+    import zenoh
+
+    from icefloe import config as config_mod
+    from icefloe.runtime import SERVICE_ZENOH_RUNTIME, zenoh_config
+    from icefloe.schemas import keys
+
+    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
+    config = config_mod.load(config_path)
+    session = zenoh.open(zenoh_config(config, connect=config.zenoh.connect))
+
+    def on_sample(_sample: zenoh.Sample) -> None:
+        if hop_count.value < MAX_STOPS:
+            hop_ns[hop_count.value] = time.monotonic_ns()
+            hop_count.value += 1
+
+    session.declare_subscriber(keys.key(config.name, keys.STOP), on_sample)
+    ready.set()
+    while True:
+        time.sleep(1.0)
 
 
 # --------------------------------------------------------------------------- figures
@@ -174,7 +201,7 @@ def parse_cyclictest(text: str) -> dict[str, float]:
 # --------------------------------------------------------------------------- main
 
 
-async def measure(config_path: Path, args: argparse.Namespace, sample_ns, zero_ns, zero_count):
+async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamespace):
     from icefloe import config as config_mod
     from icefloe.runtime import Node
     from icefloe.schemas import codec, keys
@@ -198,7 +225,11 @@ async def measure(config_path: Path, args: argparse.Namespace, sample_ns, zero_n
         wheels_pub, stop_pub = node.publisher(keys.WHEELS_CMD), node.publisher(keys.STOP)
         stops: list[float] = []
         wheel_lat: list[float] = []
-        c0 = state0["ticks_left"]
+        # hwbridge's ticks are 0 at the RECEIVE its handshake makes, just before the first
+        # TRANSMIT; the first TRANSMIT (the first recorded count) is then ticks 1.
+        base = first_count(rec.sample_ns) - 1
+        wall_offset = time.time() - time.monotonic()
+        stamp_lat: list[float] = []
         end = time.monotonic() + args.seconds
         while time.monotonic() < end:
             for _ in range(3):
@@ -210,27 +241,27 @@ async def measure(config_path: Path, args: argparse.Namespace, sample_ns, zero_n
             while raw.pending():
                 sample = await anext(raw)
                 w = codec.decode(sample.payload, sample.encoding, m.Wheels)
-                count = w.ticks_left - c0 + first_count(sample_ns)
-                if 0 <= count < SLOTS and sample_ns[count]:
-                    wheel_lat.append(sample.received * 1e9 - sample_ns[count])
+                count = w.ticks_left + base
+                if 0 <= count < SLOTS and rec.sample_ns[count]:
+                    wheel_lat.append(sample.received * 1e9 - rec.sample_ns[count])
+                # Cross-check on another clock: hwbridge's own stamp (taken right after the
+                # exchange) -> received.
+                stamp_lat.append((sample.received + wall_offset) * 1e9 - w.stamp)
         state1, hist1 = shared.read_state(), list(shared.hist)
         shared.close()
         cyclic_out = cyclic.communicate()[0] if cyclic else ""
     delta = [b - a for a, b in zip(hist0, hist1, strict=True)]
     assert len(delta) == HIST_BINS and hist_bin(0) == 0
     p50, p99, p999, pmax = percentiles(delta, (0.5, 0.99, 0.999, 1.0))
-    zeros = sorted(zero_ns[i] for i in range(zero_count.value))
-    wire = []
-    for t in stops:
-        later = [z for z in zeros if z > t]
-        if later:
-            wire.append(later[0] - t)
+    wire = delays(stops, rec.zero_ns, rec.zero_count.value)
+    hop = delays(stops, rec.hop_ns, rec.hop_count.value)
     cycles = state1["cycles"] - state0["cycles"]
     return {
         "cycles": cycles, "overruns": state1["overruns"] - state0["overruns"],
         "p50": p50 * 1e6, "p99": p99 * 1e6, "p99.9": p999 * 1e6, "max": pmax * 1e6,
         "timeouts": state1["timeouts"] - state0["timeouts"],
-        "wire": wire, "wheels": wheel_lat, "cyclic": parse_cyclictest(cyclic_out),
+        "kicks": state1["kicks"] - state0["kicks"], "stamp": stamp_lat,
+        "wire": wire, "hop": hop, "wheels": wheel_lat, "cyclic": parse_cyclictest(cyclic_out),
         "cyclic_cpu": other_cpu, "rt_cpu": cpus[-1],
     }
 
@@ -291,12 +322,13 @@ def main() -> None:
                                f'[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 2\n'
                                f'sim_socket = "{tmp}/board.sock"\n[hwbridge]\nwheels_rate_hz = {args.wheels_hz}\n')
     ctx = mp.get_context("spawn")
-    sample_ns = ctx.Array("q", SLOTS, lock=False)
-    zero_ns = ctx.Array("q", MAX_STOPS, lock=False)
-    zero_count = ctx.Value("q", 0, lock=False)
+    rec = SimpleNamespace(  # what the helper processes record, in shared memory
+        sample_ns=ctx.Array("q", SLOTS, lock=False), zero_ns=ctx.Array("q", MAX_STOPS, lock=False),
+        zero_count=ctx.Value("q", 0, lock=False), hop_ns=ctx.Array("q", MAX_STOPS, lock=False),
+        hop_count=ctx.Value("q", 0, lock=False))
     ready = ctx.Event()
-    board = ctx.Process(target=board_process, args=(str(config_path), sample_ns, zero_ns,
-                                                    zero_count, ready), daemon=True)
+    board = ctx.Process(target=board_process, args=(str(config_path), rec.sample_ns, rec.zero_ns,
+                                                    rec.zero_count, ready), daemon=True)
     board.start()
     ready.wait(10)
     procs = []
@@ -311,13 +343,18 @@ def main() -> None:
     start("-m", "icefloe.router", "--config", str(config_path), name="router")
     time.sleep(1.0)
     start("-m", "icefloe.services.hwbridge", "--config", str(config_path), name="hwbridge")
+    ready = ctx.Event()
+    hop = ctx.Process(target=hop_process, args=(str(config_path), rec.hop_ns, rec.hop_count, ready),
+                      daemon=True)
+    hop.start()
+    ready.wait(10)
     flooder = None
     if args.flood_hz > 0:
         flooder = ctx.Process(target=flood_process, args=(str(config_path), args.flood_hz),
                               daemon=True)
         flooder.start()
     try:
-        r = asyncio.run(measure(config_path, args, sample_ns, zero_ns, zero_count))
+        r = asyncio.run(measure(config_path, args, rec))
     finally:
         if flooder:
             flooder.terminate()
@@ -326,10 +363,10 @@ def main() -> None:
             with contextlib.suppress(subprocess.TimeoutExpired):
                 p.wait(10)
         board.terminate()
+        hop.terminate()
         for log in logs:
             log.close()
     c = r["cyclic"]
-    ms = 1e-6
     print(f"hwbridge latency bench: {args.seconds} s at 1 kHz, bus flood {args.flood_hz:g} msg/s "
           f"on io/ledarray; logs in {tmp}")
     print(f"{'':28}{'p50':>8}{'p99':>8}{'p99.9':>8}{'max':>8}   (µs)")
@@ -342,12 +379,29 @@ def main() -> None:
               f"overflows {c.get('Histogram Overflows', 0):.0f} (CPU {r['cyclic_cpu']})")
     else:
         print("cyclictest: not installed (apt-get install rt-tests)")
-    print(f"{'command -> wire (cmd/stop)':28}{pct(r['wire'], 0.5) * ms:8.2f}"
-          f"{pct(r['wire'], 0.99) * ms:8.2f}{'':8}{max(r['wire'], default=0) * ms:8.2f}"
-          f"   ms, {len(r['wire'])} stops")
-    print(f"{'encoder sample -> hw/wheels':28}{pct(r['wheels'], 0.5) * ms:8.2f}"
-          f"{pct(r['wheels'], 0.99) * ms:8.2f}{'':8}{max(r['wheels'], default=0) * ms:8.2f}"
-          f"   ms, {len(r['wheels'])} samples")
+    row("command -> wire (cmd/stop)", r["wire"],
+        f"{len(r['wire'])} stops, {r['kicks']} sent between periods")
+    row("  reference: bus hop only", r["hop"], "cmd/stop -> a raw zenoh-python callback")
+    row("encoder sample -> hw/wheels", r["wheels"], f"{len(r['wheels'])} samples")
+    row("  cross-check: cycle stamp", r["stamp"], "hwbridge's stamp -> received (wall clock)")
+
+
+def row(name: str, values_ns: list[float], note: str) -> None:
+    """One line of delays in ms: p50, p99, max."""
+    ms = 1e-6
+    print(f"{name:28}{pct(values_ns, 0.5) * ms:8.2f}{pct(values_ns, 0.99) * ms:8.2f}{'':8}"
+          f"{max(values_ns, default=0) * ms:8.2f}   ms, {note}")
+
+
+def delays(starts: list[int], events, count: int) -> list[float]:
+    """For each start time, ns to the first recorded event after it."""
+    times = sorted(events[i] for i in range(count))
+    out = []
+    for t in starts:
+        i = bisect.bisect_right(times, t)
+        if i < len(times):
+            out.append(times[i] - t)
+    return out
 
 
 def penguinpi_main(args: argparse.Namespace) -> None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -37,10 +38,11 @@ VARIANTS = ("raw", "raw-fifo", "runtime")
 def _receive(config_path: str, variant: str, count: int) -> list[int]:
     """Receiver role: latencies in ns of `count` messages."""
     from icefloe import config as config_mod
-    from icefloe.runtime import Node, run_async, zenoh_config
+    from icefloe.runtime import SERVICE_ZENOH_RUNTIME, Node, run_async, zenoh_config
     from icefloe.schemas import codec, keys
     from icefloe.schemas import messages as m
 
+    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
     cfg = config_mod.load(config_path)
     latencies: list[int] = []
     if variant == "raw-fifo":
@@ -95,10 +97,11 @@ def _receive(config_path: str, variant: str, count: int) -> list[int]:
 
 def _send(config_path: str, variant: str, count: int, rate: float) -> None:
     from icefloe import config as config_mod
-    from icefloe.runtime import MSGPACK, Node, run_async, zenoh_config
+    from icefloe.runtime import MSGPACK, SERVICE_ZENOH_RUNTIME, Node, run_async, zenoh_config
     from icefloe.schemas import codec, keys
     from icefloe.schemas import messages as m
 
+    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
     cfg = config_mod.load(config_path)
     period = 1.0 / rate
 

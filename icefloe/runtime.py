@@ -23,6 +23,8 @@ What it gives you:
   has a queue policy: *latest* (keep only the newest sample: sensor streams) or
   *fifo* (keep up to ``maxsize`` in order, dropping the oldest: commands). Bad
   payloads are dropped with a log line naming the key and the field.
+  `Node.batches` reads a high-rate stream once per period instead (a list of
+  messages each time), without running Python on Zenoh's thread per sample.
 * Typed publishers, queryables with async handlers, and `Node.query`.
 * `run`: the ``__main__`` of every service: ``--config``, ``--connect``, logging,
   and a clean exit on SIGINT/SIGTERM.
@@ -35,6 +37,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -138,11 +141,9 @@ class Subscription(Generic[T]):
         *,
         latest: bool,
         maxsize: int,
-        coalesce: float = 0.0,
     ) -> None:
         self.key_expr = key_expr
         self.latest = latest
-        self.coalesce = coalesce
         self.skipped = 0
         """Samples overwritten (latest) or dropped because the queue was full (fifo)."""
         self.rejected = 0
@@ -155,12 +156,7 @@ class Subscription(Generic[T]):
         self._wake_pending = False
         self._closed = False
         self._warn = LimitedLog(node.log)
-        if coalesce:
-            # Zenoh keeps the samples in its own ring (newest `maxsize`); the loop drains it every
-            # `coalesce` seconds, so no Python runs on Zenoh's thread per sample.
-            self._sub = node.session.declare_subscriber(key_expr, zenoh.handlers.RingChannel(maxsize))
-        else:
-            self._sub = node.session.declare_subscriber(key_expr, self._on_sample)
+        self._sub = node.session.declare_subscriber(key_expr, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Runs on a Zenoh thread: copy the bytes, queue them, wake the loop once. Never block.
@@ -175,26 +171,13 @@ class Subscription(Generic[T]):
                 return
             self._wake_pending = True
         with contextlib.suppress(RuntimeError):  # the loop is closing: nothing to wake
-            if self.coalesce:
-                self._loop.call_soon_threadsafe(self._loop.call_later, self.coalesce, self._wake.set)
-            else:
-                self._loop.call_soon_threadsafe(self._wake.set)
+            self._loop.call_soon_threadsafe(self._wake.set)
 
     def __aiter__(self) -> Subscription[T]:
         return self
 
-    def _drain_ring(self) -> None:
-        while (sample := self._sub.try_recv()) is not None:
-            self._items.append(RawSample(str(sample.key_expr), sample.payload.to_bytes(),
-                                         str(sample.encoding), time.monotonic()))
-
     async def __anext__(self) -> T:
         while True:
-            if self.coalesce and not self._items and not self._closed:
-                self._drain_ring()
-                if not self._items:
-                    await asyncio.sleep(self.coalesce)
-                    continue
             with self._lock:
                 raw = self._items.popleft() if self._items else None
                 if raw is None:
@@ -223,6 +206,56 @@ class Subscription(Generic[T]):
             self._wake.set()
 
 
+class Batches(Generic[T]):
+    """An async iterator that yields, once every ``period`` seconds, the list of messages of one
+    key that arrived since the previous list (oldest first; empty when none came).
+
+    For high-rate streams read by a slower loop (1 kHz wheels into 50 Hz odometry). No Python
+    runs per sample on Zenoh's thread: Zenoh keeps the samples in its own ring (the newest
+    ``maxsize``) and each period the loop takes them all at once. Periods follow absolute
+    deadlines; a late one is not followed by a burst.
+    """
+
+    def __init__(self, node: Node, key_expr: str, decode: Callable[[RawSample], T], *,
+                 period: float, maxsize: int) -> None:
+        self.key_expr = key_expr
+        self.period = period
+        self.rejected = 0
+        """Samples dropped because they did not decode."""
+        self._decode = decode
+        self._deadline: float | None = None
+        self._closed = False
+        self._warn = LimitedLog(node.log)
+        self._sub = node.session.declare_subscriber(key_expr, zenoh.handlers.RingChannel(maxsize))
+
+    def __aiter__(self) -> Batches[T]:
+        return self
+
+    async def __anext__(self) -> list[T]:
+        loop = asyncio.get_running_loop()
+        now = loop.time()
+        if self._deadline is None or self._deadline < now - self.period:
+            self._deadline = now  # first period, or we fell behind: start again from now
+        self._deadline += self.period
+        await asyncio.sleep(self._deadline - now)
+        if self._closed:
+            raise StopAsyncIteration
+        batch: list[T] = []
+        while (sample := self._sub.try_recv()) is not None:
+            raw = RawSample(self.key_expr, sample.payload.to_bytes(), str(sample.encoding), 0.0)
+            try:
+                batch.append(self._decode(raw))
+            except BadPayload as exc:
+                self.rejected += 1
+                self._warn.warning(f"dropped: {exc}")
+        return batch
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._sub.undeclare()
+
+
 class Publisher(Generic[T]):
     """Publishes one message type on one key, as MessagePack."""
 
@@ -240,6 +273,15 @@ class Publisher(Generic[T]):
         if type(message) is not self._type:
             raise TypeError(f"{self.key_expr} carries {self._type.__name__}, not {type(message).__name__}")
         self._pub.put(codec.encode(message))
+
+
+def _decoder(topic: Topic) -> Callable[[RawSample], Any]:
+    type_ = topic.type
+
+    def decode(raw: RawSample) -> Any:
+        return codec.decode(raw.payload, raw.encoding, type_, raw.key)
+
+    return decode
 
 
 class Node:
@@ -296,24 +338,20 @@ class Node:
     # ------------------------------------------------------------------ subscribing
 
     def subscribe(self, topic: Topic, *, latest: bool | None = None, maxsize: int = 64,
-                  robot: str | None = None, coalesce: float = 0.0) -> Subscription[Any]:
-        """Typed messages of ``topic``. Default policy: fifo for commands, latest for state.
-
-        ``coalesce`` (s): instead of a callback per sample, let Zenoh queue the samples (the newest
-        ``maxsize``) and collect them every ``coalesce`` seconds. For high-rate streams read by a
-        slower loop (1 kHz wheels into 50 Hz odometry) it saves the cost of running Python on
-        Zenoh's thread for every sample, at the price of up to that much latency.
-        """
-        key_expr = keys.key(robot or self.robot, topic)
-        type_ = topic.type
-
-        def decode(raw: RawSample) -> Any:
-            return codec.decode(raw.payload, raw.encoding, type_, raw.key)
-
+                  robot: str | None = None) -> Subscription[Any]:
+        """Typed messages of ``topic``. Default policy: fifo for commands, latest for state."""
         if latest is None:
             latest = topic.kind == "out"
-        sub: Subscription[Any] = Subscription(self, key_expr, decode, latest=latest, maxsize=maxsize,
-                                              coalesce=coalesce)
+        sub: Subscription[Any] = Subscription(self, keys.key(robot or self.robot, topic), _decoder(topic),
+                                              latest=latest, maxsize=maxsize)
+        self._closables.append(sub)
+        return sub
+
+    def batches(self, topic: Topic, period: float, *, maxsize: int = 4096,
+                robot: str | None = None) -> Batches[Any]:
+        """Typed messages of ``topic`` as one list every ``period`` s (see `Batches`)."""
+        sub: Batches[Any] = Batches(self, keys.key(robot or self.robot, topic), _decoder(topic),
+                                    period=period, maxsize=maxsize)
         self._closables.append(sub)
         return sub
 
@@ -412,9 +450,18 @@ class _BusLogHandler(logging.Handler):
             pass
 
 
+SERVICE_ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (handover: app), net: (handover: app), "
+                         "rx: (handover: app), tx: (handover: app))")
+"""Zenoh's thread pools for a service: one worker thread instead of pools sized for a server.
+Fewer thread hand-offs per sample: on the 2-core test machine a 1 kHz subscriber costs half the
+CPU and a hop is ~25 % faster (docs/runtime.md). The router keeps Zenoh's defaults. A
+``ZENOH_RUNTIME`` set in the environment wins."""
+
+
 async def open_session(config: RobotConfig, *, mode: str = "client", log: logging.Logger | None = None,
                        retry: bool = True) -> zenoh.Session:
     """Open a Zenoh session to the robot's router, retrying while it is not up yet."""
+    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # read when the first session opens
     log = log or logging.getLogger("icefloe")
     endpoints = list(config.zenoh.connect)
     delay = 0.1

@@ -6,8 +6,11 @@ board's end byte by byte. The cycle (`rt.Cycle`) runs on real shared memory.
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import os
 import re
+import threading
 import tty
 
 import msgspec
@@ -15,9 +18,11 @@ import pytest
 
 from icefloe.config import RobotConfig
 from icefloe.errors import BoardError, ConfigError
+from icefloe.schemas import messages as m
 from icefloe.services.hwbridge import control
 from icefloe.services.hwbridge.__main__ import check_config
 from icefloe.services.hwbridge.board import Board
+from icefloe.services.hwbridge.bridge import Bridge
 from icefloe.services.hwbridge.penguinpi import PenguinPiBoard, board_text
 from icefloe.services.hwbridge.rt import Cycle
 from icefloe.services.hwbridge.shm import IO_LED, IO_TEXT, MSG_WARNING, Shared
@@ -236,3 +241,54 @@ def test_bad_hwbridge_config_is_refused_naming_the_key(table, named) -> None:
     with pytest.raises(ConfigError, match=re.escape(f"robot.toml: {named}")):
         check_config(config)
     check_config(RobotConfig())
+
+
+def test_a_stop_goes_out_between_periods_once(shared) -> None:
+    config = RobotConfig()
+    board = FakeBoard(config)
+    cycle = Cycle(config, shared, board)
+    t = 10**9
+    shared.write_commands(0.2, 0.2, t, False, 0)
+    cycle.step(t)
+    assert not board.calls[-1][3]
+    cycle.stop_now(t + MS // 2)                        # no stop latched: nothing to do
+    assert len(board.calls) == 1
+    shared.write_commands(0.0, 0.0, t, True, 0)       # the bus side latches cmd/stop...
+    cycle.stop_now(t + MS // 2)                        # ...and signals: the stop goes now
+    assert board.calls[-1] == (t + MS // 2, 0.0, 0.0, True)
+    assert cycle.stop_reason == control.STOP_LATCHED and shared.read_state()["kicks"] == 1
+    cycle.stop_now(t + MS * 3 // 4)                    # already stopped: no extra exchange
+    assert len(board.calls) == 2
+
+
+def test_penguinpi_stop_does_not_wait_for_the_exchange_slot(penguin) -> None:
+    board, end, _ = penguin
+    board.cycle(1 * MS, 0.15, 0.15, stopped=False)
+    assert ppi.Parser().feed(end.read())[0].opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC
+    end.write(multi_reply(0, 0))
+    board.cycle(2 * MS, 0.15, 0.15, stopped=False)   # the next wheel slot is 5 ms after the first
+    poll = ppi.Parser().feed(end.read())[0]
+    assert poll.address == ppi.Address.AD_ADC_V      # the link is free: a slow poll goes
+    end.write(ppi.encode_frame(poll.address, poll.opcode, ppi.pack_float(7400.0)))
+    board.cycle(3 * MS, 0.0, 0.0, stopped=True)       # stop: at once, not at 6 ms
+    frame = ppi.Parser().feed(end.read())[0]
+    assert frame.opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC
+    assert ppi.unpack_multi_set(frame.payload) == (0, 0)
+
+
+async def test_a_stop_wins_over_a_motion_step_that_has_not_seen_it(shared) -> None:
+    bridge = Bridge(RobotConfig(), shared, logging.getLogger("test"))
+    motion = asyncio.ensure_future(bridge.motion(m.Motion(left=0.1, right=0.1, duration=5.0)))
+    await asyncio.sleep(0.05)
+    assert shared.read_commands()[:2] == (0.1, 0.1) and not shared.read_commands()[3]
+    since = bridge.stops
+    stopper = threading.Thread(target=bridge.stop)    # cmd/stop, latched on a Zenoh thread
+    stopper.start()
+    stopper.join()
+    # The motion's next step runs before the loop tells it that it was cut: it must not drive.
+    bridge.drive(0.1, 0.1, "cmd/motion", motion_since=since)
+    assert shared.read_commands()[:2] == (0.0, 0.0) and shared.read_commands()[3] == 1
+    done = await asyncio.wait_for(motion, 1.0)
+    assert not done.completed and done.reason == "cmd/stop"
+    bridge.drive(0.1, 0.1, "cmd/twist")                # a new command releases the latch
+    assert shared.read_commands()[3] == 0

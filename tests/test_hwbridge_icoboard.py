@@ -115,6 +115,8 @@ async def test_stop_latches_and_motion_and_halt(make_robot) -> None:
                                 timeout=5.0)
         assert done.completed
         start = await sim_state(node)
+        shared = Shared.attach(block_name(robot.name))
+        rt_pid = shared.read_state()["pid"]
         # A motion cut short by cmd/stop answers completed=False; the stop latches.
         task = asyncio.ensure_future(node.query(keys.MOTION, m.Motion(left=0.1, right=0.1,
                                                                       duration=5.0), timeout=8.0))
@@ -124,6 +126,11 @@ async def test_stop_latches_and_motion_and_halt(make_robot) -> None:
         assert not done.completed and "cmd/stop" in done.reason
         halted = await node.query(keys.HALT, m.Stop(), timeout=5.0)
         assert abs(halted.speed_left) < 0.005 and abs(halted.speed_right) < 0.005
+        # The stop woke the cycle with SIGUSR1 (sent at once, or taken by the period that
+        # was running); the same real-time process is still running.
+        state = shared.read_state()
+        shared.close()
+        assert (state["pid"], state["kicks"] <= 1) == (rt_pid, True), state
         end = await sim_state(node)
         assert end.x > start.x + 0.03, "the motions moved the robot forward"
         # Bad requests get one clear error and change nothing.

@@ -127,16 +127,29 @@ async def test_no_router_fails_fast_when_asked_to(make_robot) -> None:
             pass
 
 
-async def test_coalesced_subscription_delivers_everything_in_order(robot: Robot) -> None:
+async def test_batches_deliver_everything_in_order_once_per_period(robot: Robot) -> None:
     async with robot.node("a") as a, robot.node("b") as b:
-        sub = b.subscribe(keys.WHEELS, latest=False, maxsize=1000, coalesce=0.01)
+        batches = b.batches(keys.WHEELS, 0.05, maxsize=1000)
         pub = a.publisher(keys.WHEELS)
         await settle()
+        assert await asyncio.wait_for(anext(batches), 1.0) == []  # nothing came: an empty list
+
+        def wheels(i: int) -> m.Wheels:
+            return m.Wheels(stamp=i, ticks_left=i, ticks_right=-i, speed_left=0.0, speed_right=0.0)
+
         for i in range(300):
-            pub.put(m.Wheels(stamp=i, ticks_left=i, ticks_right=-i, speed_left=0.0, speed_right=0.0))
-        got = [(await next_of(sub)).stamp for _ in range(300)]
+            pub.put(wheels(i))
+        got: list[int] = []
+        sizes: list[int] = []
+        while len(got) < 300:
+            batch = await asyncio.wait_for(anext(batches), 1.0)
+            sizes.append(len(batch))
+            got += [w.stamp for w in batch]
         assert got == list(range(300))
+        assert sizes[0] > 1, "samples that arrive within a period come together"
         a.session.put(a.key(keys.WHEELS), b'{"stamp": "late"}', encoding=codec.JSON)
-        pub.put(m.Wheels(stamp=300, ticks_left=0, ticks_right=0, speed_left=0.0, speed_right=0.0))
-        assert (await next_of(sub)).stamp == 300  # the bad one was dropped, the reader carried on
-        assert sub.rejected == 1
+        pub.put(wheels(300))
+        got = []
+        while not got:
+            got = [w.stamp for w in await asyncio.wait_for(anext(batches), 1.0)]
+        assert got == [300] and batches.rejected == 1  # the bad one was dropped, the reader carried on

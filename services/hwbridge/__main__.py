@@ -76,11 +76,14 @@ async def supervise(config: RobotConfig, bridge: Bridge, node: Node) -> int:
         assert proc.stdin is not None
         proc.stdin.write(payload)
         proc.stdin.close()
+        bridge.rt_pid = proc.pid
         try:
             code = await proc.wait()
         except asyncio.CancelledError:
+            bridge.rt_pid = None
             await _terminate(proc)
             raise
+        bridge.rt_pid = None
         bridge.forward_messages()  # its last words (e.g. why it refused the board)
         if code == EXIT_MISMATCH:
             node.log.error("the board does not match the config; hwbridge stops (see above)")

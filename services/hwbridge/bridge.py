@@ -14,7 +14,10 @@ deadman stop the wheels, never make them run on.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import os
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -71,6 +74,10 @@ class Bridge:
         self.fresh_ns = 0
         self.stopped = False
         self.epoch = 0
+        self.stops = 0
+        """Stops latched so far (a motion that began before the last one must not drive)."""
+        self.rt_pid: int | None = None
+        """The running real-time process (set by its supervisor), for `kick`."""
         self._lock = threading.Lock()
         """`stop` may run on a Zenoh thread (the fast path): one writer at a time."""
         self._loop = asyncio.get_running_loop()
@@ -86,15 +93,21 @@ class Bridge:
 
     # ------------------------------------------------------------------ commands
 
-    def drive(self, left: float, right: float, source: str, *, from_motion: bool = False) -> None:
-        """New wheel targets (m/s): clamp (logged), release the stop latch, feed the deadman."""
+    def drive(self, left: float, right: float, source: str, *, motion_since: int | None = None) -> None:
+        """New wheel targets (m/s): clamp (logged), release the stop latch, feed the deadman.
+
+        A timed motion passes ``motion_since``, the `stops` count when it began: a stop
+        latched since then (on a Zenoh thread, before the motion learns it was cut) wins.
+        """
         left, right, clamped = limit_wheels(left, right, self.max_speed)
         if clamped:
             self.limited.warning(f"clamp:{source}", f"{source}: clamped to {self.max_speed} m/s "
                                  f"per wheel (left {left:.3f}, right {right:.3f})")
-        if not from_motion:
+        if motion_since is None:
             self.cut_motion(f"another command on {source}")
         with self._lock:
+            if motion_since is not None and motion_since != self.stops:
+                return
             self.left, self.right = left, right
             self.stopped = False
             self.fresh_ns = time.monotonic_ns()
@@ -116,11 +129,23 @@ class Bridge:
         with self._lock:
             self.left = self.right = 0.0
             self.stopped = True
+            self.stops += 1
         self.sync()
+        self.kick()
         if threading.current_thread() is threading.main_thread():
             self.cut_motion(why)
         else:
             self._loop.call_soon_threadsafe(self.cut_motion, why)
+
+    def kick(self) -> None:
+        """Wake the cycle (SIGUSR1) so it sends a latched stop now, not at its next period."""
+        pid = self.rt_pid
+        # The cycle writes its pid once its SIGUSR1 handler is in place; before that the
+        # signal would kill it, and the next period applies the stop anyway.
+        if pid is None or self.shared.read_state()["pid"] != pid:
+            return
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGUSR1)
 
     def cut_motion(self, why: str) -> None:
         if self._motion is not None and not self._motion.done():
@@ -135,18 +160,19 @@ class Bridge:
         self.cut_motion("another cmd/motion")
         cut: asyncio.Future[str] = asyncio.get_running_loop().create_future()
         self._motion = cut
+        since = self.stops
         while True:
             left, right, done = profile.at(time.monotonic())
             if done:
                 break
-            self.drive(left, right, keys.MOTION.name, from_motion=True)
+            self.drive(left, right, keys.MOTION.name, motion_since=since)
             try:
                 reason = await asyncio.wait_for(asyncio.shield(cut), MOTION_STEP_S)
             except TimeoutError:
                 continue
             return m.MotionDone(stamp=time.time_ns(), completed=False, reason=reason)
         self._motion = None
-        self.drive(0.0, 0.0, keys.MOTION.name, from_motion=True)
+        self.drive(0.0, 0.0, keys.MOTION.name, motion_since=since)
         return m.MotionDone(stamp=time.time_ns(), completed=True, reason="")
 
     async def halt(self, _msg: m.Stop) -> m.Wheels:

@@ -97,6 +97,7 @@ class PenguinPiBoard(Board):
         self._inflight_deadline = 0
         self._next_exchange = 0
         self._next_poll = 0
+        self._was_stopped = True
         self._poll_index = 0
         self._outbox: deque[bytes] = deque(maxlen=64)
         self._unsent = b""
@@ -161,6 +162,9 @@ class PenguinPiBoard(Board):
             raise BoardError(f"{self.port_name}: read failed (link lost?): {exc}") from None
         if data:
             self._receive(data, now_ns)
+        if stopped and not self._was_stopped:
+            self._next_exchange = now_ns  # a stop goes out as soon as the link is free
+        self._was_stopped = stopped
         if self._inflight is not None and now_ns > self._inflight_deadline:
             self.timeouts += 1
             self._inflight = None

@@ -19,6 +19,11 @@ Each period (``hwbridge.rate_hz``, 1 kHz by default):
 A cycle that ends after the next deadline is an overrun: it is counted and the
 missed deadlines are skipped, not caught up in a burst.
 
+A stop does not wait for the period: when the bus process latches ``cmd/stop``
+it sends this process ``SIGUSR1``, which ends the sleep early, and the cycle
+sends the stop to the board at once (`Cycle.stop_now`). Motion commands wait
+for the next period.
+
 Where the OS allows it: ``SCHED_FIFO`` at ``hwbridge.priority``, ``mlockall``,
 pinned to ``hwbridge.cpu``; otherwise one warning each and carry on. The garbage
 collector is disabled and every object made during setup is frozen; the cycle
@@ -43,7 +48,7 @@ from icefloe.config import RobotConfig
 from icefloe.errors import BoardError, BoardMismatch
 
 from .board import MSG_ERROR, MSG_INFO, MSG_WARNING, Board, Say, make_board
-from .control import SlewLimiter, gate, hist_bin
+from .control import STOP_LATCHED, STOP_NONE, SlewLimiter, gate, hist_bin
 from .shm import STATE_FIELDS, Shared
 
 CLOCK_MONOTONIC = 1
@@ -127,6 +132,10 @@ class Cycle:
         self.board = board or make_board(config, self.say)
         self.slew = (SlewLimiter(hw.max_accel), SlewLimiter(hw.max_accel))
         self.stopping = False
+        self.kicked = False
+        """Set by SIGUSR1: the bus process latched a stop (`stop_now`)."""
+        self.kicks = 0
+        """Stops sent to the board between two periods."""
         self.link_up = False
         self.mismatch = False
         self._next_retry = 0
@@ -173,13 +182,37 @@ class Cycle:
             self.target_left = self.slew[0].step(left, self._last_dt)
             self.target_right = self.slew[1].step(right, self._last_dt)
         self._board_step(now_ns, stopped)
+        self._forward_io()
+        self._publish()
+
+    def stop_now(self, now_ns: int) -> None:
+        """Send a freshly latched stop to the board now, between two periods.
+
+        Only a stop takes this path, and only when the wheels were being driven:
+        it adds at most one exchange per stop, and a motion command can never
+        make the cycle run early.
+        """
+        try:
+            stop = self.shared.read_commands()[3]
+        except TimeoutError:
+            stop = 1
+        if not stop or self.stop_reason != STOP_NONE:
+            return  # no stop latched, or the wheels are stopped already
+        self.stop_reason = STOP_LATCHED
+        self.slew[0].reset()
+        self.slew[1].reset()
+        self.target_left = self.target_right = 0.0
+        self.kicks += 1
+        self._board_step(now_ns, True)
+        self._publish()
+
+    def _forward_io(self) -> None:
         item = self.shared.pop_io()
         if item is not None:
             if self.link_up:
                 self.board.io(*item)
             else:
                 self.io_dropped += 1
-        self._publish()
 
     def _board_step(self, now_ns: int, stopped: bool) -> None:
         board = self.board
@@ -223,7 +256,7 @@ class Cycle:
             b.garbage_bytes, b.board_errors,
             b.battery_voltage, b.battery_current, self._started,
             b.battery_ns, b.button_presses, b.dip, b.late, b.lost, self.io_dropped, 0,
-            os.getpid(), int(self.mismatch), b.watchdog, 0, 0,
+            os.getpid(), int(self.mismatch), b.watchdog, self.kicks, 0,
         )
         self.shared.write_state(s)
 
@@ -235,10 +268,13 @@ class Cycle:
         deadline = time.monotonic_ns() + period
         self._last_wake = deadline - period
         while not self.stopping:
+            if self.kicked:  # SIGUSR1 woke us early, or came while we were busy
+                self.kicked = False
+                self.stop_now(time.monotonic_ns())
             timer.sleep_until(deadline)
             woke = time.monotonic_ns()
             if woke < deadline:
-                continue  # a signal woke us early: check `stopping`, sleep again
+                continue  # a signal woke us early: a stop to send, or time to exit
             latency = woke - deadline
             hist[hist_bin(latency)] += 1
             if latency > self.latency_max:
@@ -279,8 +315,12 @@ def main(argv: list[str] | None = None) -> int:
     def on_signal(signum: int, frame: object) -> None:
         cycle.stopping = True
 
+    def on_kick(signum: int, frame: object) -> None:
+        cycle.kicked = True
+
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGUSR1, on_kick)  # before the first state write: see Bridge.kick
     hw = config.hwbridge
     make_realtime(hw.priority, hw.cpu, cycle.say)
     timer = AbsoluteTimer()

@@ -59,7 +59,7 @@ STATE_FIELDS = (
     # board readings
     "battery_voltage", "battery_current", "rt_started",
     "battery_ns", "button_presses", "dip", "late", "lost", "io_dropped", "text_lost",
-    "pid", "mismatch", "watchdog", "spare1", "spare2",
+    "pid", "mismatch", "watchdog", "kicks", "spare",
 )  # fmt: skip
 
 IO_SLOTS = 32
