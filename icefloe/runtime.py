@@ -240,6 +240,10 @@ class Batches(Generic[T]):
         await asyncio.sleep(self._deadline - now)
         if self._closed:
             raise StopAsyncIteration
+        return self.take()
+
+    def take(self) -> list[T]:
+        """The messages that arrived since the last list, now, without waiting."""
         batch: list[T] = []
         while (sample := self._sub.try_recv()) is not None:
             raw = RawSample(self.key_expr, sample.payload.to_bytes(), str(sample.encoding), 0.0)
@@ -266,7 +270,8 @@ class Publisher(Generic[T]):
             self.key_expr,
             encoding=MSGPACK,
             congestion_control=zenoh.CongestionControl.DROP,
-            express=express,
+            express=express or topic.urgent,
+            priority=zenoh.Priority.REAL_TIME if topic.urgent else zenoh.Priority.DEFAULT,
         )
 
     def put(self, message: T) -> None:

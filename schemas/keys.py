@@ -29,11 +29,14 @@ class Topic:
     """in: commands to the robot; out: state from the robot; query: a queryable."""
     reply: type[m.Message] | None = None
     """For a queryable: the message of its answer."""
+    urgent: bool = False
+    """Sent at Zenoh's real-time priority, without batching: overtakes other traffic in
+    every queue on the way (``cmd/stop``)."""
 
 
 TWIST = Topic("cmd/twist", m.Twist, "in")
 WHEELS_CMD = Topic("cmd/wheels", m.WheelSpeeds, "in")
-STOP = Topic("cmd/stop", m.Stop, "in")
+STOP = Topic("cmd/stop", m.Stop, "in", urgent=True)
 MOTION = Topic("cmd/motion", m.Motion, "query", reply=m.MotionDone)
 LEDS = Topic("io/leds", m.Led, "in")
 LEDARRAY = Topic("io/ledarray", m.LedArray, "in")

@@ -2,9 +2,10 @@
 
 This is the bus process. It
 
-* subscribes to ``cmd/twist``, ``cmd/wheels``, ``cmd/stop``, ``io/leds``,
-  ``io/ledarray``, ``io/text``, ``io/screen`` and answers the ``cmd/motion``
-  and ``cmd/halt`` queries (`bridge.Bridge`);
+* subscribes to ``cmd/twist``, ``cmd/wheels``, ``cmd/stop`` (each message as
+  it comes), ``io/leds``, ``io/ledarray``, ``io/text``, ``io/screen`` (collected
+  every 20 ms) and answers the ``cmd/motion`` and ``cmd/halt`` queries
+  (`bridge.Bridge`);
 * starts the real-time process (`rt.py`: the cycle, no Zenoh in it), hands it
   the commands through shared memory, and restarts it if it dies;
 * publishes ``hw/wheels`` (``hwbridge.wheels_rate_hz``), ``hw/loop`` (1 Hz),
@@ -178,11 +179,9 @@ async def main(config: RobotConfig) -> int:
             async with asyncio.TaskGroup() as tasks:
                 # When the supervisor returns (the board refused), everything else stops too.
                 cycle = tasks.create_task(supervise(config, bridge, node))
-                others = [tasks.create_task(publish(config, bridge, node))]
-                for topic, handler in ((keys.TWIST, bridge.twist), (keys.WHEELS_CMD, bridge.wheels),
-                                       (keys.LEDS, bridge.led), (keys.LEDARRAY, bridge.ledarray),
-                                       (keys.BOARD_TEXT, bridge.text),
-                                       (keys.BOARD_SCREEN, bridge.screen)):
+                others = [tasks.create_task(publish(config, bridge, node)),
+                          tasks.create_task(forward_io(node, bridge))]
+                for topic, handler in ((keys.TWIST, bridge.twist), (keys.WHEELS_CMD, bridge.wheels)):
                     others.append(tasks.create_task(_forward(node, topic, handler)))
                 node.queryable(keys.MOTION, bridge.motion)
                 node.queryable(keys.HALT, bridge.halt)
@@ -219,6 +218,30 @@ def fast_stop(node: Node, bridge: Bridge) -> zenoh.Subscriber:
         bridge.stop(keys.STOP.name)
 
     return node.session.declare_subscriber(key_expr, on_sample)
+
+
+IO_PERIOD_S = 0.02
+"""LED, screen and text commands are collected every 20 ms."""
+
+
+async def forward_io(node: Node, bridge: Bridge) -> None:
+    """LED, LED-array, screen and text commands to the board, collected once per `IO_PERIOD_S`.
+
+    The board takes one such command per cycle (the PenguinPi far fewer), so nothing is gained
+    by handling each message as it comes, and a script flooding the LEDs then costs this
+    process no Python per message: the motion commands and ``cmd/stop`` keep the GIL to
+    themselves. For the LED array and the screen only the newest message counts.
+    """
+    inputs = [(node.batches(keys.LEDS, IO_PERIOD_S), bridge.led, False),
+              (node.batches(keys.LEDARRAY, IO_PERIOD_S), bridge.ledarray, True),
+              (node.batches(keys.BOARD_SCREEN, IO_PERIOD_S), bridge.screen, True),
+              (node.batches(keys.BOARD_TEXT, IO_PERIOD_S), bridge.text, False)]
+    while True:
+        await asyncio.sleep(IO_PERIOD_S)
+        for batches, handler, newest_only in inputs:
+            batch = batches.take()
+            for msg in batch[-1:] if newest_only else batch:
+                handler(msg)
 
 
 async def _forward(node: Node, topic: keys.Topic, handler: Callable[[Any], None]) -> None:
