@@ -51,6 +51,8 @@ ROOT = Path(__file__).resolve().parent.parent
 SLOTS = 1 << 17
 """Sample-time slots: one per encoder count (one count per exchange: 131 s at 1 kHz)."""
 MAX_STOPS = 1 << 14
+PERIOD_US = 1000
+"""The cycle's period at 1 kHz: a wake-up this late has missed a period."""
 
 
 # --------------------------------------------------------------------------- the board process
@@ -191,10 +193,12 @@ def parse_cyclictest(text: str) -> dict[str, float]:
         if match:
             counts.append(int(match.group(2)))
     figures = hist_percentiles(counts)
+    figures["late"] = float(sum(counts[PERIOD_US:]))  # plus the overflows, added below
     for key in ("Max Latencies", "Histogram Overflows", "Total"):
         match = re.search(rf"# {key}:\s+(\d+)", text)
         if match:
             figures[key] = float(match.group(1))
+    figures["late"] += figures.get("Histogram Overflows", 0.0)
     return figures
 
 
@@ -258,6 +262,7 @@ async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamesp
     cycles = state1["cycles"] - state0["cycles"]
     return {
         "cycles": cycles, "overruns": state1["overruns"] - state0["overruns"],
+        "late": sum(delta[hist_bin(PERIOD_US * 1000):]),
         "p50": p50 * 1e6, "p99": p99 * 1e6, "p99.9": p999 * 1e6, "max": pmax * 1e6,
         "timeouts": state1["timeouts"] - state0["timeouts"],
         "kicks": state1["kicks"] - state0["kicks"], "stamp": stamp_lat,
@@ -371,12 +376,13 @@ def main() -> None:
           f"on io/ledarray; logs in {tmp}")
     print(f"{'':28}{'p50':>8}{'p99':>8}{'p99.9':>8}{'max':>8}   (µs)")
     print(f"{'hwbridge cycle wake-up':28}{r['p50']:8.0f}{r['p99']:8.0f}{r['p99.9']:8.0f}"
-          f"{r['max']:8.0f}   {r['cycles']} cycles, {r['overruns']} overruns, "
+          f"{r['max']:8.0f}   {r['cycles']} cycles, {r['late']} woke >= 1 period late, {r['overruns']} overruns, "
           f"{r['timeouts']} board timeouts (CPU {r['rt_cpu']})")
     if c:
         print(f"{'cyclictest (same prio)':28}{c.get('p50', 0):8.0f}{c.get('p99', 0):8.0f}"
               f"{c.get('p99.9', 0):8.0f}{c.get('Max Latencies', 0):8.0f}   "
-              f"overflows {c.get('Histogram Overflows', 0):.0f} (CPU {r['cyclic_cpu']})")
+              f"{c.get('Total', 0):.0f} cycles, {c.get('late', 0):.0f} woke >= 1 period late "
+              f"(CPU {r['cyclic_cpu']})")
     else:
         print("cyclictest: not installed (apt-get install rt-tests)")
     row("command -> wire (cmd/stop)", r["wire"],

@@ -251,13 +251,16 @@ def test_a_stop_goes_out_between_periods_once(shared) -> None:
     shared.write_commands(0.2, 0.2, t, False, 0)
     cycle.step(t)
     assert not board.calls[-1][3]
-    cycle.stop_now(t + MS // 2)                        # no stop latched: nothing to do
+    deadline = t + MS                                  # the next period
+    cycle.stop_now(t + MS // 2, deadline)              # no stop latched: nothing to do
     assert len(board.calls) == 1
     shared.write_commands(0.0, 0.0, t, True, 0)       # the bus side latches cmd/stop...
-    cycle.stop_now(t + MS // 2)                        # ...and signals: the stop goes now
+    cycle.stop_now(deadline - MS // 4 + 1, deadline)   # ...too close to the period: it waits
+    assert len(board.calls) == 1
+    cycle.stop_now(t + MS // 2, deadline)              # ...in good time: the stop goes now
     assert board.calls[-1] == (t + MS // 2, 0.0, 0.0, True)
     assert cycle.stop_reason == control.STOP_LATCHED and shared.read_state()["kicks"] == 1
-    cycle.stop_now(t + MS * 3 // 4)                    # already stopped: no extra exchange
+    cycle.stop_now(t + MS // 2 + 1, deadline)          # already stopped: no extra exchange
     assert len(board.calls) == 2
 
 

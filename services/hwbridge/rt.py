@@ -21,8 +21,8 @@ missed deadlines are skipped, not caught up in a burst.
 
 A stop does not wait for the period: when the bus process latches ``cmd/stop``
 it sends this process ``SIGUSR1``, which ends the sleep early, and the cycle
-sends the stop to the board at once (`Cycle.stop_now`). Motion commands wait
-for the next period.
+sends the stop to the board at once (`Cycle.stop_now`), unless the next
+period is due within a quarter period. Motion commands wait for the next period.
 
 Where the OS allows it: ``SCHED_FIFO`` at ``hwbridge.priority``, ``mlockall``,
 pinned to ``hwbridge.cpu``; otherwise one warning each and carry on. The garbage
@@ -185,13 +185,17 @@ class Cycle:
         self._forward_io()
         self._publish()
 
-    def stop_now(self, now_ns: int) -> None:
+    def stop_now(self, now_ns: int, deadline_ns: int) -> None:
         """Send a freshly latched stop to the board now, between two periods.
 
         Only a stop takes this path, and only when the wheels were being driven:
         it adds at most one exchange per stop, and a motion command can never
-        make the cycle run early.
+        make the cycle run early. Within a quarter period of the next deadline
+        the stop waits for it, so that the extra exchange cannot make the
+        period late.
         """
+        if deadline_ns - now_ns < self.period_ns // 4:
+            return  # the period, due within a quarter period, sends it
         try:
             stop = self.shared.read_commands()[3]
         except TimeoutError:
@@ -270,7 +274,7 @@ class Cycle:
         while not self.stopping:
             if self.kicked:  # SIGUSR1 woke us early, or came while we were busy
                 self.kicked = False
-                self.stop_now(time.monotonic_ns())
+                self.stop_now(time.monotonic_ns(), deadline)
             timer.sleep_until(deadline)
             woke = time.monotonic_ns()
             if woke < deadline:
