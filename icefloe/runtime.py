@@ -458,8 +458,8 @@ class _BusLogHandler(logging.Handler):
 SERVICE_ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (handover: app), net: (handover: app), "
                          "rx: (handover: app), tx: (handover: app))")
 """Zenoh's thread pools for a service: one worker thread instead of pools sized for a server.
-Fewer thread hand-offs per sample: on the 2-core test machine a 1 kHz subscriber costs half the
-CPU and a hop is ~25 % faster (docs/runtime.md). The router keeps Zenoh's defaults. A
+Fewer thread hand-offs per sample: on the 2-core test machine the session of a 1 kHz subscriber
+costs half the CPU, at the same latency (docs/runtime.md). The router keeps Zenoh's defaults. A
 ``ZENOH_RUNTIME`` set in the environment wins."""
 
 
