@@ -259,6 +259,8 @@ async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamesp
     p50, p99, p999, pmax = percentiles(delta, (0.5, 0.99, 0.999, 1.0))
     wire = delays(stops, rec.zero_ns, rec.zero_count.value)
     hop = delays(stops, rec.hop_ns, rec.hop_count.value)
+    # Per stop: wire minus the reference's hop ~ what hwbridge adds after the bus delivered it.
+    share = [w - h for w, h in zip(wire, hop, strict=False)] if len(wire) == len(hop) else []
     cycles = state1["cycles"] - state0["cycles"]
     return {
         "cycles": cycles, "overruns": state1["overruns"] - state0["overruns"],
@@ -266,7 +268,7 @@ async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamesp
         "p50": p50 * 1e6, "p99": p99 * 1e6, "p99.9": p999 * 1e6, "max": pmax * 1e6,
         "timeouts": state1["timeouts"] - state0["timeouts"],
         "kicks": state1["kicks"] - state0["kicks"], "stamp": stamp_lat,
-        "wire": wire, "hop": hop, "wheels": wheel_lat, "cyclic": parse_cyclictest(cyclic_out),
+        "wire": wire, "hop": hop, "share": share, "wheels": wheel_lat, "cyclic": parse_cyclictest(cyclic_out),
         "cyclic_cpu": other_cpu, "rt_cpu": cpus[-1],
     }
 
@@ -388,6 +390,7 @@ def main() -> None:
     row("command -> wire (cmd/stop)", r["wire"],
         f"{len(r['wire'])} stops, {r['kicks']} sent between periods")
     row("  reference: bus hop only", r["hop"], "cmd/stop -> a raw zenoh-python callback")
+    row("  difference, per stop", r["share"], "wire - hop: hwbridge's own share, roughly")
     row("encoder sample -> hw/wheels", r["wheels"], f"{len(r['wheels'])} samples")
     row("  cross-check: cycle stamp", r["stamp"], "hwbridge's stamp -> received (wall clock)")
 

@@ -162,16 +162,18 @@ class FakeBoard(Board):
     def __init__(self, config: RobotConfig) -> None:
         super().__init__(config, lambda kind, text: None)
         self.calls: list[tuple[int, float, float, bool]] = []
+        self.until_ns = 0
         self.fail_next = False
 
     def open(self, now_ns: int) -> None:
         pass
 
-    def cycle(self, now_ns: int, left: float, right: float, stopped: bool) -> None:
+    def cycle(self, now_ns: int, left: float, right: float, stopped: bool, until_ns: int = 0) -> None:
         if self.fail_next:
             self.fail_next = False
             raise BoardError("fake: gone")
         self.calls.append((now_ns, left, right, stopped))
+        self.until_ns = until_ns
 
 
 @pytest.fixture
@@ -255,10 +257,11 @@ def test_a_stop_goes_out_between_periods_once(shared) -> None:
     cycle.stop_now(t + MS // 2, deadline)              # no stop latched: nothing to do
     assert len(board.calls) == 1
     shared.write_commands(0.0, 0.0, t, True, 0)       # the bus side latches cmd/stop...
-    cycle.stop_now(deadline - MS // 4 + 1, deadline)   # ...too close to the period: it waits
+    cycle.stop_now(deadline - MS // 8 + 1, deadline)   # ...too close to the period: it waits
     assert len(board.calls) == 1
     cycle.stop_now(t + MS // 2, deadline)              # ...in good time: the stop goes now
     assert board.calls[-1] == (t + MS // 2, 0.0, 0.0, True)
+    assert deadline - MS // 8 < board.until_ns < deadline  # it gives up on the reply in time
     assert cycle.stop_reason == control.STOP_LATCHED and shared.read_state()["kicks"] == 1
     cycle.stop_now(t + MS // 2 + 1, deadline)          # already stopped: no extra exchange
     assert len(board.calls) == 2

@@ -38,7 +38,7 @@ from icefloe.schemas import messages as m
 
 from .bridge import Bridge, LoopReport
 from .rt import EXIT_MISMATCH
-from .shm import Shared, block_name
+from .shm import IO_SLOTS, Shared, block_name
 
 RESTART_DELAY_S = 1.0
 """Wait before restarting a real-time process that died."""
@@ -228,19 +228,19 @@ async def forward_io(node: Node, bridge: Bridge) -> None:
     """LED, LED-array, screen and text commands to the board, collected once per `IO_PERIOD_S`.
 
     The board takes one such command per cycle (the PenguinPi far fewer), so nothing is gained
-    by handling each message as it comes, and a script flooding the LEDs then costs this
-    process no Python per message: the motion commands and ``cmd/stop`` keep the GIL to
-    themselves. For the LED array and the screen only the newest message counts.
+    by handling each message as it comes. Zenoh keeps at most what the board could take (for
+    the LED array and the screen only the newest message counts), so a script flooding the
+    LEDs costs this process no Python per message, and the motion commands and ``cmd/stop``
+    keep the GIL to themselves.
     """
-    inputs = [(node.batches(keys.LEDS, IO_PERIOD_S), bridge.led, False),
-              (node.batches(keys.LEDARRAY, IO_PERIOD_S), bridge.ledarray, True),
-              (node.batches(keys.BOARD_SCREEN, IO_PERIOD_S), bridge.screen, True),
-              (node.batches(keys.BOARD_TEXT, IO_PERIOD_S), bridge.text, False)]
+    inputs = [(node.batches(keys.LEDS, IO_PERIOD_S, maxsize=IO_SLOTS), bridge.led),
+              (node.batches(keys.LEDARRAY, IO_PERIOD_S, maxsize=1), bridge.ledarray),
+              (node.batches(keys.BOARD_SCREEN, IO_PERIOD_S, maxsize=1), bridge.screen),
+              (node.batches(keys.BOARD_TEXT, IO_PERIOD_S, maxsize=IO_SLOTS), bridge.text)]
     while True:
         await asyncio.sleep(IO_PERIOD_S)
-        for batches, handler, newest_only in inputs:
-            batch = batches.take()
-            for msg in batch[-1:] if newest_only else batch:
+        for batches, handler in inputs:
+            for msg in batches.take():
                 handler(msg)
 
 

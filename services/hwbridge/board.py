@@ -79,11 +79,13 @@ class Board:
         """Connect and handshake; raises `BoardError` (retried) or `BoardMismatch` (fatal)."""
         raise NotImplementedError
 
-    def cycle(self, now_ns: int, left: float, right: float, stopped: bool) -> None:
+    def cycle(self, now_ns: int, left: float, right: float, stopped: bool, until_ns: int = 0) -> None:
         """One period: targets (rim speeds, m/s) out, readings in. Never waits on the link.
 
         ``stopped`` means the targets are zero because of a stop, the deadman or
         no command yet: the backend drives zero without any controller action.
+        ``until_ns`` (CLOCK_MONOTONIC), when given, is when to stop waiting for a
+        reply (a stop sent between periods must not delay the next period).
         Raises `BoardError` when the link is lost.
         """
         raise NotImplementedError

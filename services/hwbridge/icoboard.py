@@ -199,7 +199,7 @@ class IcoBoardBoard(Board):
 
     # ------------------------------------------------------------------ the cycle
 
-    def cycle(self, now_ns: int, left: float, right: float, stopped: bool) -> None:
+    def cycle(self, now_ns: int, left: float, right: float, stopped: bool, until_ns: int = 0) -> None:
         transport = self._transport
         if transport is None:
             raise BoardError(f"{self._where}: not connected")
@@ -220,9 +220,13 @@ class IcoBoardBoard(Board):
         self._seq = (self._seq + 1) & 0xFF
         frame = self.wire.request(Op.TRANSMIT, seq=self._seq, duties=duties)
         # Wait for the reply for at most half a period, so the cycle keeps its deadline.
-        raw = transport.exchange(frame, 0.5 * self.period_s)
+        wait = 0.5 * self.period_s
+        if until_ns:
+            wait = min(wait, max(0.0, (until_ns - time.monotonic_ns()) * 1e-9))
+        raw = transport.exchange(frame, wait)
         if raw is None:
-            self.timeouts += 1
+            if not until_ns:  # a reply cut short on purpose arrives late, and is drained then
+                self.timeouts += 1
         else:
             self._reply(raw, previous_seq, time.monotonic_ns())
         if now_ns - self._last_ok_ns > GIVE_UP_S * 1e9:

@@ -152,7 +152,7 @@ class PenguinPiBoard(Board):
 
     # ------------------------------------------------------------------ the cycle
 
-    def cycle(self, now_ns: int, left: float, right: float, stopped: bool) -> None:
+    def cycle(self, now_ns: int, left: float, right: float, stopped: bool, until_ns: int = 0) -> None:
         ser = self._ser
         if ser is None:
             raise BoardError(f"{self.port_name}: not open")

@@ -22,7 +22,7 @@ missed deadlines are skipped, not caught up in a burst.
 A stop does not wait for the period: when the bus process latches ``cmd/stop``
 it sends this process ``SIGUSR1``, which ends the sleep early, and the cycle
 sends the stop to the board at once (`Cycle.stop_now`), unless the next
-period is due within a quarter period. Motion commands wait for the next period.
+period is due within an eighth of a period. Motion commands wait for the next period.
 
 Where the OS allows it: ``SCHED_FIFO`` at ``hwbridge.priority``, ``mlockall``,
 pinned to ``hwbridge.cpu``; otherwise one warning each and carry on. The garbage
@@ -57,6 +57,8 @@ MCL_CURRENT, MCL_FUTURE = 1, 2
 PR_SET_PDEATHSIG = 1
 RETRY_NS = 1_000_000_000
 """After the board link is lost, try to reopen it once a second."""
+KICK_GUARD_FRACTION = 8
+"""A stop within period / 8 of the next deadline waits for it (`Cycle.stop_now`)."""
 EXIT_MISMATCH = 3
 """Exit status when the board is not the one the config describes (do not restart)."""
 
@@ -190,12 +192,12 @@ class Cycle:
 
         Only a stop takes this path, and only when the wheels were being driven:
         it adds at most one exchange per stop, and a motion command can never
-        make the cycle run early. Within a quarter period of the next deadline
-        the stop waits for it, so that the extra exchange cannot make the
-        period late.
+        make the cycle run early. Within an eighth of a period (125 µs at
+        1 kHz, about two exchanges) of the next deadline the stop waits for
+        it, so that the extra exchange does not make the period late.
         """
-        if deadline_ns - now_ns < self.period_ns // 4:
-            return  # the period, due within a quarter period, sends it
+        if deadline_ns - now_ns < self.period_ns // KICK_GUARD_FRACTION:
+            return  # the period, due in a moment, sends it
         try:
             stop = self.shared.read_commands()[3]
         except TimeoutError:
@@ -207,7 +209,8 @@ class Cycle:
         self.slew[1].reset()
         self.target_left = self.target_right = 0.0
         self.kicks += 1
-        self._board_step(now_ns, True)
+        # Stop waiting for the board's reply half the guard before the deadline.
+        self._board_step(now_ns, True, deadline_ns - self.period_ns // (2 * KICK_GUARD_FRACTION))
         self._publish()
 
     def _forward_io(self) -> None:
@@ -218,7 +221,7 @@ class Cycle:
             else:
                 self.io_dropped += 1
 
-    def _board_step(self, now_ns: int, stopped: bool) -> None:
+    def _board_step(self, now_ns: int, stopped: bool, until_ns: int = 0) -> None:
         board = self.board
         if not self.link_up:
             if now_ns < self._next_retry:
@@ -240,7 +243,7 @@ class Cycle:
             self._link_warned = False
             self.say(MSG_INFO, f"board link up: {board.name}")
         try:
-            board.cycle(now_ns, self.target_left, self.target_right, stopped)
+            board.cycle(now_ns, self.target_left, self.target_right, stopped, until_ns)
         except BoardError as exc:
             self.link_up = False
             self._next_retry = now_ns + RETRY_NS
