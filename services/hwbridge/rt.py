@@ -193,11 +193,11 @@ class Cycle:
         Only a stop takes this path, and only when the wheels were being driven:
         it adds at most one exchange per stop, and a motion command can never
         make the cycle run early. Within an eighth of a period (125 µs at
-        1 kHz, about two exchanges) of the next deadline the stop waits for
-        it, so that the extra exchange does not make the period late.
+        1 kHz) of the next deadline the stop waits for it, so that the extra
+        exchange does not make the period late.
         """
-        if deadline_ns - now_ns < self.period_ns // KICK_GUARD_FRACTION:
-            return  # the period, due in a moment, sends it
+        if not self.link_up or deadline_ns - now_ns < self.period_ns // KICK_GUARD_FRACTION:
+            return  # no board to tell, or the period, due in a moment, tells it
         try:
             stop = self.shared.read_commands()[3]
         except TimeoutError:
