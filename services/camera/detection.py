@@ -40,7 +40,9 @@ class Detector:
         """``sizes``: printed side of the black square per marker id, m."""
         params = cv2.aruco.DetectorParameters()
         # Sub-pixel corners with a small window: a 12 cm marker 2 m away is only 30 px wide, so each
-        # cell is 5 px and OpenCV's default window (5 px) reaches into the neighbouring cells.
+        # cell is 5 px and OpenCV's default window (5 px) reaches into the neighbouring cells. OpenCV
+        # >= 4.7 also caps the window at relativeCornerRefinmentWinSize (0.3) x the cell size, so it
+        # is 1-2 px here. The corners land ~0.24 px inside the square: ranges ~0.9 % long (docs/camera.md).
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
         params.cornerRefinementWinSize = 3
         params.cornerRefinementMinAccuracy = 0.01
