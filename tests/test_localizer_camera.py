@@ -24,7 +24,7 @@ from collections.abc import Callable
 
 import pytest
 from conftest import Robot, wait_for
-from test_localizer_sim import LEGS, at, collect, error, error_near
+from test_localizer_sim import at, check_exits, collect, drive_legs, error, error_near
 
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -72,19 +72,10 @@ async def drive_square(
         # The localizer publishes from the first odometry; wait for camera frames too, so the drive
         # starts with every process up (the camera needs sim/truth before it renders anything).
         await wait_for(lambda: truth and odom and loc and frames, timeout=40)
-        twist = node.publisher(keys.TWIST)
-        for v, w, seconds in LEGS:
-            for _ in range(round(seconds / 0.05)):
-                twist.put(m.Twist(v=v, w=w))
-                await asyncio.sleep(0.05)
-        node.publisher(keys.STOP).put(m.Stop())
-        await asyncio.sleep(1.0)  # wheels at rest, last samples and frames through
+        await drive_legs(node)
         for task in tasks:
             task.cancel()
-    for proc in procs:
-        assert proc.alive(), proc.output
-    for proc in procs[2:]:  # ours: they must end cleanly on SIGINT (sim and hwbridge: the fixture stops them)
-        assert proc.stop() == 0, proc.output
+    check_exits(procs)
     return truth, odom, loc, frames, procs[-1].output
 
 

@@ -50,20 +50,30 @@ async def drive_square(robot, *, play_camera: bool) -> tuple[list, list, list, R
                  asyncio.create_task(collect(node.subscribe(keys.ODOM_POSE, latest=False), odom)),
                  asyncio.create_task(collect(node.subscribe(keys.LOC_POSE, latest=False), loc))]
         await wait_for(lambda: truth and odom and (loc or not play_camera), timeout=40)
-        twist = node.publisher(keys.TWIST)
-        for v, w, seconds in LEGS:
-            for _ in range(round(seconds / 0.05)):
-                twist.put(m.Twist(v=v, w=w))
-                await asyncio.sleep(0.05)
-        node.publisher(keys.STOP).put(m.Stop())
-        await asyncio.sleep(1.0)  # wheels at rest, last samples through
+        await drive_legs(node)
         for task in tasks:
             task.cancel()
+    check_exits(procs)
+    return truth, odom, loc, stats
+
+
+async def drive_legs(node) -> None:
+    """Drive LEGS with cmd/twist at 20 Hz, stop, and wait for the wheels to rest and the last samples."""
+    twist = node.publisher(keys.TWIST)
+    for v, w, seconds in LEGS:
+        for _ in range(round(seconds / 0.05)):
+            twist.put(m.Twist(v=v, w=w))
+            await asyncio.sleep(0.05)
+    node.publisher(keys.STOP).put(m.Stop())
+    await asyncio.sleep(1.0)
+
+
+def check_exits(procs) -> None:
+    """Every process still ran; ours (after sim and hwbridge, which the fixture stops) end cleanly on SIGINT."""
     for proc in procs:
         assert proc.alive(), proc.output
-    for proc in procs[2:]:  # ours: they must end cleanly on SIGINT (sim and hwbridge: the fixture stops them)
+    for proc in procs[2:]:
         assert proc.stop() == 0, proc.output
-    return truth, odom, loc, stats
 
 
 def at(truth: list[m.Truth], stamp: int) -> m.Truth:
