@@ -160,6 +160,30 @@ def test_late_frames_are_brought_up_to_date_with_odometry() -> None:
     assert loc.stale_frames == 1 and loc.ekf.accepted == before
 
 
+def test_frames_newer_than_the_odometry_are_moved_back_along_its_speeds() -> None:
+    """Turning on the spot at 1.5 rad/s; each frame is taken 15 ms after the latest odometry pose."""
+    import logging
+
+    from icefloe.schemas import messages as m
+    from icefloe.services.localizer.tracker import Localizer
+
+    loc = Localizer(_config(initial_sigma_xy=0.01, initial_sigma_theta=0.01), logging.getLogger("test"))
+    t0, rate, ahead = 1_000_000_000_000, 1.5, 15_000_000
+    worst = 0.0
+    for k in range(150):  # 3 s, odometry at 50 Hz with its speed estimate
+        stamp = t0 + k * 20_000_000
+        theta = wrap_angle(rate * k * 0.02)
+        loc.on_odometry(m.Pose(stamp=stamp, x=0.0, y=0.0, theta=theta, v=0.0, w=rate))
+        if k >= 1 and k % 3 == 0:
+            th_frame = wrap_angle(theta + rate * ahead * 1e-9)  # 1.3 degrees further round
+            frame = [m.Landmark(id=i, range=r, bearing=b) for i in LAB
+                     for r, b in [observe_from((0.0, 0.0, th_frame), i)] if abs(b) < 0.6]
+            loc.on_landmarks(m.Landmarks(stamp=stamp + ahead, landmarks=frame))
+            worst = max(worst, abs(wrap_angle(loc.ekf.pose[2] - theta)))
+    assert loc.ekf.accepted > 100 and loc.ekf.outliers == 0
+    assert worst < math.radians(0.2)  # taken as if at the odometry's time it would be ~1.3 degrees
+
+
 def test_initial_pose_from_the_first_frame_with_two_landmarks() -> None:
     import logging
 

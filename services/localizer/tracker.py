@@ -58,6 +58,8 @@ class Throttled:
 
 HISTORY_NS = 1_000_000_000
 """How long odometry poses are kept to bring late landmark frames up to date, ns."""
+EXTRAPOLATE_S = 0.1
+"""A frame up to this much newer than the latest odometry is moved back along the odometry's speeds."""
 
 
 class Localizer:
@@ -67,7 +69,9 @@ class Localizer:
     (`stamp`). A camera frame is older than that (exposure, detection, the
     bus); its sightings are moved to the present with the odometry increment
     since the frame's stamp (`shift_sighting`) before the update. Frames older
-    than the odometry kept (`HISTORY_NS`) are dropped as stale.
+    than the odometry kept (`HISTORY_NS`) are dropped as stale. A frame newer
+    than the latest odometry (a camera faster than the 50 Hz poses) is moved
+    back by the motion the odometry's speeds predict (`EXTRAPOLATE_S` at most).
 
     Lost: when ``localizer.relocalize_after`` sightings in a row fail the gate
     (the robot was carried away, the start pose was wrong beyond its sigma),
@@ -129,7 +133,15 @@ class Localizer:
             if t0 <= stamp <= t1:
                 f = (stamp - t0) / (t1 - t0) if t1 > t0 else 1.0
                 return x0 + f * (x1 - x0), y0 + f * (y1 - y0), wrap_angle(th0 + f * wrap_angle(th1 - th0))
-        return hist[-1][1:]  # newer than the latest odometry: nothing to bring forward
+        # Newer than the latest odometry (a fast camera, odometry published every 20 ms): carry the
+        # latest pose on at its measured speeds, for a short while only.
+        t, x, y, th = hist[-1]
+        ahead = (stamp - t) * 1e-9
+        last = self._last_odom
+        if last is None or ahead > EXTRAPOLATE_S:
+            return x, y, th
+        mid = th + last.w * ahead / 2  # the heading halfway: exact enough for a few ms
+        return x + last.v * ahead * math.cos(mid), y + last.v * ahead * math.sin(mid), wrap_angle(th + last.w * ahead)
 
     def on_landmarks(self, frame: m.Landmarks) -> bool:
         """Apply a frame; True if the estimate exists afterwards (so it is worth publishing)."""
