@@ -43,7 +43,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Coroutine, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Generic, TypeVar
 
@@ -293,9 +293,11 @@ class Node:
     """One service's connection to the bus. Use as ``async with Node(name, config) as node``."""
 
     def __init__(self, service: str, config: RobotConfig, *, mode: str = "client",
-                 announce: bool = True, retry: bool = True) -> None:
+                 announce: bool = True, retry: bool = True, one_zenoh_thread: bool = True) -> None:
         """``announce``: hold the liveliness token; ``retry``: wait for the router instead of
-        raising `NotReachable` (services wait; command-line tools fail fast)."""
+        raising `NotReachable` (services wait; command-line tools fail fast);
+        ``one_zenoh_thread``: `SERVICE_ZENOH_RUNTIME` (False: Zenoh's own pools)."""
+        self.one_zenoh_thread = one_zenoh_thread
         self.service = service
         self.announce = announce
         self.retry = retry
@@ -312,7 +314,8 @@ class Node:
         return keys.key(self.robot, topic)
 
     async def __aenter__(self) -> Node:
-        self.session = await open_session(self.config, mode=self.mode, log=self.log, retry=self.retry)
+        with _zenoh_pools(SERVICE_ZENOH_RUNTIME if self.one_zenoh_thread else None):
+            self.session = await open_session(self.config, mode=self.mode, log=self.log, retry=self.retry)
         if self.announce:
             token = self.session.liveliness().declare_token(keys.alive_key(self.robot, self.service))
             self._closables.append(token)
@@ -459,14 +462,28 @@ SERVICE_ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (handover: app), net: 
                          "rx: (handover: app), tx: (handover: app))")
 """Zenoh's thread pools for a service: one worker thread instead of pools sized for a server.
 Fewer thread hand-offs per sample: on the 2-core test machine the session of a 1 kHz subscriber
-costs half the CPU, at the same latency (docs/runtime.md). The router keeps Zenoh's defaults. A
-``ZENOH_RUNTIME`` set in the environment wins."""
+costs half the CPU, at the same latency (docs/runtime.md). The router and the simulator keep
+Zenoh's defaults (``Node(one_zenoh_thread=False)``). A ``ZENOH_RUNTIME`` set in the environment
+wins."""
+
+
+@contextlib.contextmanager
+def _zenoh_pools(runtime: str | None) -> Iterator[None]:
+    """``ZENOH_RUNTIME=runtime`` while the first session opens (Zenoh reads it then, once), unless
+    the environment already sets it; removed again after, so child processes do not inherit it."""
+    added = runtime is not None and "ZENOH_RUNTIME" not in os.environ
+    if added:
+        os.environ["ZENOH_RUNTIME"] = runtime  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        if added:
+            del os.environ["ZENOH_RUNTIME"]
 
 
 async def open_session(config: RobotConfig, *, mode: str = "client", log: logging.Logger | None = None,
                        retry: bool = True) -> zenoh.Session:
     """Open a Zenoh session to the robot's router, retrying while it is not up yet."""
-    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # read when the first session opens
     log = log or logging.getLogger("icefloe")
     endpoints = list(config.zenoh.connect)
     delay = 0.1

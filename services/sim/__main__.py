@@ -45,7 +45,9 @@ async def main(config: RobotConfig) -> None:
     # The board's I/O thread must answer an exchange well inside hwbridge's 1 ms cycle,
     # also while the clock thread or a Zenoh callback is busy in Python.
     sys.setswitchinterval(GIL_SWITCH_S)
-    async with Node("sim", config) as node:
+    # Zenoh's own thread pools, not the services' single thread: with one, the board models
+    # answered late often enough to fail tests/test_hwbridge_icoboard.py about one run in six.
+    async with Node("sim", config, one_zenoh_thread=False) as node:
         loop = asyncio.get_running_loop()
         gpio_pub = node.publisher(keys.SIM_GPIO)
 
