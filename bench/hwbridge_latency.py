@@ -355,24 +355,11 @@ def main() -> None:
                       daemon=True)
     hop.start()
     ready.wait(10)
-    flooder = None
-    if args.flood_hz > 0:
-        flooder = ctx.Process(target=flood_process, args=(str(config_path), args.flood_hz),
-                              daemon=True)
-        flooder.start()
+    helpers = [board, hop, *start_flooder(config_path, args.flood_hz)]
     try:
         r = asyncio.run(measure(config_path, args, rec))
     finally:
-        if flooder:
-            flooder.terminate()
-        for p in reversed(procs):
-            p.send_signal(2)
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                p.wait(10)
-        board.terminate()
-        hop.terminate()
-        for log in logs:
-            log.close()
+        stop_all(procs, logs, helpers)
     c = r["cyclic"]
     print(f"hwbridge latency bench: {args.seconds} s at 1 kHz, bus flood {args.flood_hz:g} msg/s "
           f"on io/ledarray; logs in {tmp}")
@@ -393,6 +380,29 @@ def main() -> None:
     row("  difference, per stop", r["share"], "wire - hop: hwbridge's own share, roughly")
     row("encoder sample -> hw/wheels", r["wheels"], f"{len(r['wheels'])} samples")
     row("  cross-check: cycle stamp", r["stamp"], "hwbridge's stamp -> received (wall clock)")
+
+
+def start_flooder(config_path: Path, rate_hz: float) -> list[mp.Process]:
+    """The bus flood (`flood_process`) in a process of its own; none when ``rate_hz`` is 0."""
+    if rate_hz <= 0:
+        return []
+    flooder = mp.get_context("spawn").Process(target=flood_process, args=(str(config_path), rate_hz),
+                                              daemon=True)
+    flooder.start()
+    return [flooder]
+
+
+def stop_all(procs: list[subprocess.Popen], logs: list, helpers: list[mp.Process]) -> None:
+    """SIGINT the stack's processes, last started first, then end the bench's helpers (the board
+    model last of all: hwbridge tells it EXIT on its way out)."""
+    for p in reversed(procs):
+        p.send_signal(2)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(10)
+    for helper in helpers:
+        helper.terminate()
+    for log in logs:
+        log.close()
 
 
 def row(name: str, values_ns: list[float], note: str) -> None:
@@ -423,22 +433,11 @@ def penguinpi_main(args: argparse.Namespace) -> None:
         procs.append(subprocess.Popen([sys.executable, "-m", module, "--config", str(config_path)],
                                       stdout=log, stderr=subprocess.STDOUT, cwd=ROOT))
         time.sleep(1.0)
-    flooder = None
-    if args.flood_hz > 0:
-        flooder = mp.get_context("spawn").Process(
-            target=flood_process, args=(str(config_path), args.flood_hz), daemon=True)
-        flooder.start()
+    helpers = start_flooder(config_path, args.flood_hz)
     try:
         r = asyncio.run(measure_penguinpi(config_path, args))
     finally:
-        if flooder:
-            flooder.terminate()
-        for p in reversed(procs):
-            p.send_signal(2)
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                p.wait(10)
-        for log in logs:
-            log.close()
+        stop_all(procs, logs, helpers)
     rates = r["rates"]
     print(f"hwbridge PenguinPi bench: {args.seconds} s, cycle 1 kHz, serial exchanges asked at "
           f"200 Hz, bus flood {args.flood_hz:g} msg/s; logs in {tmp}")
