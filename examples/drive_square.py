@@ -15,7 +15,7 @@ import argparse
 import math
 import time
 
-from icefloe.client import Robot
+from icefloe.client import Robot, add_robot_arguments, robot_arguments
 
 SPEED = 0.20
 """Forward speed of both wheels, m/s."""
@@ -98,15 +98,11 @@ def go_to(robot: Robot, x: float, y: float) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", help="robot config file (default: the simulated robot)")
-    parser.add_argument("--robot", help="robot name, e.g. penguin1")
-    parser.add_argument("--connect", help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447")
-    parser.add_argument("--credentials", help="the robot's credentials file (robots with access control)")
+    add_robot_arguments(parser)
     parser.add_argument("--side", type=float, default=0.3, help="side of the square, m")
     args = parser.parse_args()
 
-    with Robot(args.robot, connect=args.connect, config=args.config,
-               credentials=args.credentials) as robot:
+    with Robot(**robot_arguments(args)) as robot:
         start = robot.pose
         print("start:", robot)
         c, s = math.cos(start.theta), math.sin(start.theta)

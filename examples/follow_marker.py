@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from icefloe.client import Robot
+from icefloe.client import Robot, add_robot_arguments, robot_arguments
 from icefloe.schemas.messages import Landmark
 
 SPEED = 0.15
@@ -34,17 +34,13 @@ def find(robot: Robot, marker: int) -> Landmark | None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", help="robot config file (default: the simulated robot)")
-    parser.add_argument("--robot", help="robot name, e.g. penguin1")
-    parser.add_argument("--connect", help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447")
-    parser.add_argument("--credentials", help="the robot's credentials file (robots with access control)")
+    add_robot_arguments(parser)
     parser.add_argument("--marker", type=int, default=1, help="ArUco id of the marker to reach")
     parser.add_argument("--stop", type=float, default=0.4, help="stop this far from the marker, m")
     parser.add_argument("--give-up", type=float, default=60.0, help="give up after this long, s")
     args = parser.parse_args()
 
-    with Robot(args.robot, connect=args.connect, config=args.config,
-               credentials=args.credentials, timeout=10.0) as robot:
+    with Robot(**robot_arguments(args), timeout=10.0) as robot:
         deadline = time.monotonic() + args.give_up
         while time.monotonic() < deadline:
             seen = find(robot, args.marker)

@@ -21,6 +21,7 @@ for a bad argument (nothing is sent then).
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import contextlib
 import inspect
@@ -75,6 +76,21 @@ def _config(name: str | None, connect: str | Sequence[str] | None,
                 raise ValueError(f"connect: {e!r} is not a Zenoh endpoint (e.g. 'tcp/10.0.0.5:7447')")
         cfg = msgspec.structs.replace(cfg, zenoh=msgspec.structs.replace(cfg.zenoh, connect=endpoints))
     return cfg
+
+
+def add_robot_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--config``, ``--robot``, ``--connect``, ``--credentials``: which robot a script talks to.
+
+    Pass the parsed arguments to ``Robot(**robot_arguments(args))``."""
+    parser.add_argument("--config", help="robot config file (default: the simulated robot)")
+    parser.add_argument("--robot", help="robot name, e.g. penguin1")
+    parser.add_argument("--connect", help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447")
+    parser.add_argument("--credentials", help="the robot's credentials file (robots with access control)")
+
+
+def robot_arguments(args: argparse.Namespace) -> dict[str, Any]:
+    """The `Robot` / `AsyncRobot` arguments from what `add_robot_arguments` parsed."""
+    return {"name": args.robot, "connect": args.connect, "config": args.config, "credentials": args.credentials}
 
 
 def _number(name: str, value: object) -> float:
