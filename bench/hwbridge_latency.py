@@ -116,16 +116,14 @@ def board_process(config_path: str, sample_ns, zero_ns, zero_count, ready) -> No
 
 def flood_process(config_path: str, rate_hz: float) -> None:
     """Publish io/ledarray at ``rate_hz`` (in bursts every millisecond) until killed."""
-    import zenoh
 
     from icefloe import config as config_mod
-    from icefloe.runtime import SERVICE_ZENOH_RUNTIME, zenoh_config
+    from icefloe.runtime import raw_session
     from icefloe.schemas import codec, keys
     from icefloe.schemas import messages as m
 
-    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
     config = config_mod.load(config_path)
-    session = zenoh.open(zenoh_config(config, connect=config.zenoh.connect))
+    session = raw_session(config)
     pub = session.declare_publisher(keys.key(config.name, keys.LEDARRAY))
     payload = codec.encode(m.LedArray(mask=0x5A5A))
     sent, start = 0, time.monotonic()
@@ -143,12 +141,11 @@ def hop_process(config_path: str, hop_ns, hop_count, ready) -> None:
     import zenoh
 
     from icefloe import config as config_mod
-    from icefloe.runtime import SERVICE_ZENOH_RUNTIME, zenoh_config
+    from icefloe.runtime import raw_session
     from icefloe.schemas import keys
 
-    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
     config = config_mod.load(config_path)
-    session = zenoh.open(zenoh_config(config, connect=config.zenoh.connect))
+    session = raw_session(config)
 
     def on_sample(_sample: zenoh.Sample) -> None:
         if hop_count.value < MAX_STOPS:
@@ -260,7 +257,7 @@ async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamesp
     wire = delays(stops, rec.zero_ns, rec.zero_count.value)
     hop = delays(stops, rec.hop_ns, rec.hop_count.value)
     # Per stop: wire minus the reference's hop ~ what hwbridge adds after the bus delivered it.
-    share = [w - h for w, h in zip(wire, hop, strict=False)] if len(wire) == len(hop) else []
+    share = [w - h for w, h in zip(wire, hop, strict=True)] if len(wire) == len(hop) else []
     cycles = state1["cycles"] - state0["cycles"]
     return {
         "cycles": cycles, "overruns": state1["overruns"] - state0["overruns"],

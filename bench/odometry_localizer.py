@@ -109,17 +109,13 @@ def publish(config_path: Path, rate_hz: float, stop: threading.Event, sent: list
     call continues the same drive.
     """
     from icefloe.config import load
-    from icefloe.runtime import MSGPACK, SERVICE_ZENOH_RUNTIME, zenoh_config
+    from icefloe.runtime import MSGPACK, raw_session
     from icefloe.schemas import codec, keys
     from icefloe.schemas import messages as m
 
     cfg = load(config_path)
-    import zenoh
-
-    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
-
     period = 1.0 / rate_hz
-    with zenoh.open(zenoh_config(cfg, connect=cfg.zenoh.connect)) as session:
+    with raw_session(cfg) as session:
         pub = session.declare_publisher(keys.key(cfg.name, keys.WHEELS), encoding=MSGPACK)
 
         def put(ticks: int) -> None:

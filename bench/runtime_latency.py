@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -38,18 +37,17 @@ VARIANTS = ("raw", "raw-fifo", "runtime")
 def _receive(config_path: str, variant: str, count: int) -> list[int]:
     """Receiver role: latencies in ns of `count` messages."""
     from icefloe import config as config_mod
-    from icefloe.runtime import SERVICE_ZENOH_RUNTIME, Node, run_async, zenoh_config
+    from icefloe.runtime import Node, raw_session, run_async
     from icefloe.schemas import codec, keys
     from icefloe.schemas import messages as m
 
-    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
     cfg = config_mod.load(config_path)
     latencies: list[int] = []
     if variant == "raw-fifo":
         import msgspec
         import zenoh
 
-        session = zenoh.open(zenoh_config(cfg, connect=cfg.zenoh.connect))
+        session = raw_session(cfg)
         decoder = msgspec.msgpack.Decoder(m.Pose)
         sub = session.declare_subscriber(keys.key(cfg.name, keys.ODOM_POSE))  # Zenoh's FIFO channel
         print("ready", flush=True)
@@ -65,7 +63,7 @@ def _receive(config_path: str, variant: str, count: int) -> list[int]:
         import msgspec
         import zenoh
 
-        session = zenoh.open(zenoh_config(cfg, connect=cfg.zenoh.connect))
+        session = raw_session(cfg)
         decoder = msgspec.msgpack.Decoder(m.Pose)
 
         def on_sample(sample: zenoh.Sample) -> None:
@@ -97,11 +95,10 @@ def _receive(config_path: str, variant: str, count: int) -> list[int]:
 
 def _send(config_path: str, variant: str, count: int, rate: float) -> None:
     from icefloe import config as config_mod
-    from icefloe.runtime import MSGPACK, SERVICE_ZENOH_RUNTIME, Node, run_async, zenoh_config
+    from icefloe.runtime import MSGPACK, Node, raw_session, run_async
     from icefloe.schemas import codec, keys
     from icefloe.schemas import messages as m
 
-    os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # the pools a service uses
     cfg = config_mod.load(config_path)
     period = 1.0 / rate
 
@@ -109,9 +106,8 @@ def _send(config_path: str, variant: str, count: int, rate: float) -> None:
         return m.Pose(stamp=time.monotonic_ns(), x=1.0, y=2.0, theta=0.3, v=0.1, w=0.0)
 
     if variant.startswith("raw"):
-        import zenoh
 
-        session = zenoh.open(zenoh_config(cfg, connect=cfg.zenoh.connect))
+        session = raw_session(cfg)
         pub = session.declare_publisher(keys.key(cfg.name, keys.ODOM_POSE), encoding=MSGPACK)
         time.sleep(0.5)
         for _ in range(count):

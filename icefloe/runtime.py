@@ -314,7 +314,7 @@ class Node:
         return keys.key(self.robot, topic)
 
     async def __aenter__(self) -> Node:
-        with _zenoh_pools(SERVICE_ZENOH_RUNTIME if self.one_zenoh_thread else None):
+        with service_zenoh_pools() if self.one_zenoh_thread else contextlib.nullcontext():
             self.session = await open_session(self.config, mode=self.mode, log=self.log, retry=self.retry)
         if self.announce:
             token = self.session.liveliness().declare_token(keys.alive_key(self.robot, self.service))
@@ -468,17 +468,24 @@ wins."""
 
 
 @contextlib.contextmanager
-def _zenoh_pools(runtime: str | None) -> Iterator[None]:
-    """``ZENOH_RUNTIME=runtime`` while the first session opens (Zenoh reads it then, once), unless
-    the environment already sets it; removed again after, so child processes do not inherit it."""
-    added = runtime is not None and "ZENOH_RUNTIME" not in os.environ
-    if added:
-        os.environ["ZENOH_RUNTIME"] = runtime  # type: ignore[assignment]
+def service_zenoh_pools() -> Iterator[None]:
+    """`SERVICE_ZENOH_RUNTIME` while the process's first session opens (Zenoh reads it then, once),
+    unless ``ZENOH_RUNTIME`` is already set; removed after, so child processes do not inherit it."""
+    if "ZENOH_RUNTIME" in os.environ:
+        yield
+        return
+    os.environ["ZENOH_RUNTIME"] = SERVICE_ZENOH_RUNTIME
     try:
         yield
     finally:
-        if added:
-            del os.environ["ZENOH_RUNTIME"]
+        del os.environ["ZENOH_RUNTIME"]
+
+
+def raw_session(config: RobotConfig) -> zenoh.Session:
+    """A plain zenoh-python session to the robot's router, with a service's thread pools: for the
+    benchmarks' raw-Zenoh references, so they compare like for like."""
+    with service_zenoh_pools():
+        return zenoh.open(zenoh_config(config, connect=config.zenoh.connect))
 
 
 async def open_session(config: RobotConfig, *, mode: str = "client", log: logging.Logger | None = None,
