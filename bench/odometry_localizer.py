@@ -173,6 +173,9 @@ def odometry_cpu(seconds: float, tmp: Path) -> list[tuple[str, str]]:
             [*py, "-c", FLOOR_POLLED, str(config)], stdout=log, stderr=log),
         "reference: Zenoh session receiving, Python never reads": subprocess.Popen(
             [*py, "-c", FLOOR_ZENOH, str(config)], stdout=log, stderr=log),
+        # The same with Zenoh's own thread pools instead of the services' one thread (docs/runtime.md).
+        "reference: the same, Zenoh's default thread pools": subprocess.Popen(
+            [*py, "-c", FLOOR_ZENOH, str(config)], stdout=log, stderr=log, env={**os.environ, "ZENOH_RUNTIME": "()"}),
     }
     rows = []
     try:
