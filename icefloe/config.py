@@ -1,9 +1,10 @@
-"""Robot configuration: one TOML file per robot in ``deploy/robots/``.
+"""Robot configuration: one TOML file per robot, named like the robot (``deploy/robots/sim.toml``).
 
-A file may start with ``extends = "other.toml"`` (relative to its own folder):
-its tables are merged over the other file's, so a lab keeps one base file and
-twenty short robot files. A bad file raises `ConfigError` naming the file and
-the key, and nothing starts.
+`load` takes a robot name (looked up in your own folder, the machine's, then the shipped
+configs: see `icefloe.paths`) or a path. A file may start with ``extends = "other.toml"``
+(relative to its own folder, or a robot name such as ``"sim"``): its tables are merged over
+the other file's, so a lab keeps one base file and twenty short robot files. A bad file raises
+`ConfigError` naming the file and the key, and nothing starts.
 
 Strings may contain ``{run_dir}`` (the robot's runtime folder, for sockets and
 pseudo-terminals) and ``{name}`` (the robot's name).
@@ -19,10 +20,11 @@ from typing import Any, Literal
 
 import msgspec
 
+from . import paths
 from .errors import ConfigError
 
-ROBOTS_DIR = Path(__file__).resolve().parent.parent / "deploy" / "robots"
-DEFAULT_CONFIG = ROBOTS_DIR / "sim.toml"
+DEFAULT_ROBOT = "sim"
+"""The robot a command means when none is named: the simulated one."""
 ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
 
 
@@ -169,8 +171,8 @@ class Odometry(Section):
 
 
 class Localizer(Section):
-    world: str = "lab.toml"
-    """Landmark map: a world file in ``deploy/worlds/`` (or a path)."""
+    world: str = "lab"
+    """Landmark map: a world name (``lab``: ``deploy/worlds/lab.toml`` or your own, see `icefloe.paths`) or a path."""
     rate_hz: float = 20.0
     """Steady rate of ``loc/pose``, Hz (it is also published after every landmark update)."""
     init: Literal["config", "landmarks"] = "config"
@@ -205,7 +207,8 @@ class Localizer(Section):
 
 
 class Sim(Section):
-    world: str = "lab.toml"
+    world: str = "lab"
+    """The simulated world: a world name or a path, as `Localizer.world`."""
     seed: int = 0
     """Random seed for slip and noise (0 = pick one and print it)."""
     slip: float = 0.0
@@ -302,8 +305,15 @@ def _read(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
         return data
     if not isinstance(parent, str):
         raise ConfigError(f"{path}: extends: expected a file name")
-    base_path = (path.parent / parent).resolve()
-    return _merge(_read(base_path, (*seen, path)), data)
+    base_path = path.parent / parent
+    if base_path.resolve() == path or not base_path.exists():
+        if paths.is_path(name := parent.removesuffix(".toml")):
+            raise ConfigError(f"{path}: extends: no such file {base_path}")
+        try:
+            base_path = paths.find("robots", name, "robot config", skip=path)  # your own, else the shipped one
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: extends: neither {base_path} nor {exc}") from None
+    return _merge(_read(base_path.resolve(), (*seen, path)), data)
 
 
 def _expand(value: Any, names: dict[str, str]) -> Any:
@@ -352,11 +362,13 @@ def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
     return msgspec.convert(expanded, RobotConfig)
 
 
-def load(path: str | os.PathLike[str] | None = None) -> RobotConfig:
-    """Load a robot config. ``None`` = the embedded simulated robot; a bare name = deploy/robots/NAME.toml."""
-    if path is None:
-        path = DEFAULT_CONFIG
-    p = Path(path)
-    if not p.suffix and not p.exists():
-        p = ROBOTS_DIR / f"{p}.toml"
+def find(name_or_path: str | os.PathLike[str] | None = None) -> Path:
+    """The file of a robot config: ``None`` = the simulated robot, a name is looked up
+    (`icefloe.paths`), a path (with a ``/`` or ending in ``.toml``) is that file."""
+    return paths.find("robots", DEFAULT_ROBOT if name_or_path is None else name_or_path, "robot config")
+
+
+def load(name_or_path: str | os.PathLike[str] | None = None) -> RobotConfig:
+    """Load a robot config by name or path (``None`` = the simulated robot ``sim``)."""
+    p = find(name_or_path)
     return parse(_read(p.resolve()), str(p))

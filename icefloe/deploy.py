@@ -20,10 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import config as config_mod
+from . import paths
 from .config import RobotConfig
 
-REPO = Path(__file__).resolve().parent.parent
-SYSTEMD_TEMPLATES = REPO / "deploy" / "systemd"
+SYSTEMD_TEMPLATES = paths.packaged("systemd")
 UNIT_DIR = Path("/etc/systemd/system")
 USER = "icefloe"
 GROUPS = ("dialout", "spi", "i2c", "gpio", "video")
@@ -102,7 +102,7 @@ def services_of(config: RobotConfig) -> list[str]:
 
 
 def install_plan(config: RobotConfig, config_path: Path, host: str = "") -> list[Action]:
-    python = str(REPO / ".venv" / "bin" / "python")
+    python = sys.executable  # the environment icefloe is installed in (the checkout's .venv, or a wheel's)
     cpu = rt_cpu(config)
     plan = [
         Action("system packages: the real-time test tool, GPIO and I2C tools",

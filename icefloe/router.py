@@ -21,13 +21,14 @@ from pathlib import Path
 
 import zenoh
 
-from .config import ROBOTS_DIR, RobotConfig
+from . import paths
+from .config import RobotConfig
 from .credentials import GUEST_PASSWORD, GUEST_USER
 from .errors import ConfigError
 from .runtime import run, zenoh_config
 from .schemas import keys
 
-ACL_TEMPLATE = ROBOTS_DIR.parent / "zenoh" / "robot-acl.json5"
+ACL_TEMPLATE = paths.packaged("zenoh", "robot-acl.json5")
 
 
 def acl_rules(owners: Iterable[tuple[str, str]]) -> str:

@@ -520,7 +520,8 @@ async def open_session(config: RobotConfig, *, mode: str = "client", log: loggin
 
 def arguments(description: str, argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--config", help="robot config: a TOML file or a name in deploy/robots (default: sim)")
+    parser.add_argument("--config",
+                        help="robot config: a name (sim, penguin1) or a path to a .toml file (default: sim)")
     parser.add_argument("--connect", action="append", help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447")
     parser.add_argument("--log-level", default="INFO")
     return parser.parse_args(argv)

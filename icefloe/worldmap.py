@@ -27,10 +27,9 @@ from typing import Annotated, Any
 
 import msgspec
 
+from . import paths
 from .config import field_error, read_toml
 from .errors import ConfigError
-
-WORLDS_DIR = Path(__file__).resolve().parent.parent / "deploy" / "worlds"
 
 
 class Marker(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -80,8 +79,10 @@ def parse_world(data: dict[str, Any], source: str) -> WorldMap:
 
 
 def load_world(name_or_path: str) -> WorldMap:
-    """Load a world file: a bare name (``"lab"`` or ``"lab.toml"``) is looked up in deploy/worlds/."""
-    path = Path(name_or_path)
-    if len(path.parts) == 1 and not path.exists():
-        path = WORLDS_DIR / (name_or_path if path.suffix else f"{name_or_path}.toml")
+    """Load a world file: a name (``"lab"``, or ``"lab.toml"`` as robot configs write it) is
+    looked up like a robot's (`icefloe.paths`: yours, the machine's, the shipped ones); a path is that file."""
+    text = str(name_or_path)
+    if "/" not in text and not text.startswith("~"):
+        text = text.removesuffix(".toml")
+    path = paths.find("worlds", text, "world file")
     return parse_world(read_toml(path, "world file"), str(path))

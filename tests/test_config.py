@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from icefloe import config
+from icefloe import config, paths
 from icefloe.errors import ConfigError
 
 
@@ -24,8 +24,39 @@ def test_embedded_default_is_a_simulated_penguinpi_named_sim() -> None:
 
 
 def test_every_shipped_robot_config_loads() -> None:
-    for path in config.ROBOTS_DIR.glob("*.toml"):
+    shipped = sorted(paths.packaged("robots").glob("*.toml"))
+    assert {p.stem for p in shipped} >= {"sim", "sim-icoboard", "penguin1"}
+    for path in shipped:
         assert config.load(path).name
+
+
+def test_a_name_is_a_name_from_any_folder_and_a_path_is_a_path(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setenv("ICEFLOE_CONFIG_DIR", str(tmp_path / "nobody"))
+    (tmp_path / "sim").mkdir()  # a folder named like the robot, as the checkout's sim/ is
+    monkeypatch.chdir(tmp_path)
+    assert config.load("sim").name == "sim"
+    assert config.find("sim") == paths.packaged("robots", "sim.toml")
+    with pytest.raises(ConfigError, match=r"^\./sim: is a folder, not a robot config"):
+        config.load("./sim")
+    with pytest.raises(ConfigError, match=r"^sim\.toml: no such robot config \(for the shipped robot config 'sim', "
+                                          r"give its name without \.toml\)"):
+        config.load("sim.toml")
+    with pytest.raises(ConfigError, match=r"^nosuch: no robot config of that name \(known: penguin1, sim, "):
+        config.load("nosuch")
+    with pytest.raises(ConfigError, match="not a robot config name"):
+        config.load("bad name!")
+
+
+def test_your_own_configs_override_the_shipped_ones_by_name(tmp_path: Path, monkeypatch) -> None:
+    robots = tmp_path / "mine" / "robots"
+    robots.mkdir(parents=True)
+    (robots / "sim.toml").write_text('extends = "sim"\n[hwbridge]\ndeadman_s = 0.25\n')  # the shipped sim
+    (robots / "r2d2.toml").write_text('extends = "sim.toml"\nname = "r2d2"\n')  # extends your own sim
+    monkeypatch.setenv("ICEFLOE_CONFIG_DIR", str(tmp_path / "mine"))
+    assert config.load("sim").hwbridge.deadman_s == 0.25
+    r2d2 = config.load("r2d2")
+    assert (r2d2.name, r2d2.hwbridge.deadman_s) == ("r2d2", 0.25)
+    assert "r2d2" in paths.known("robots")
 
 
 def test_extends_merges_tables(tmp_path: Path) -> None:
@@ -44,7 +75,7 @@ def test_extends_merges_tables(tmp_path: Path) -> None:
         ('[board]\nkind = "arduino"\n', "board.kind: Invalid enum value 'arduino'"),
         ("name = \n", "not valid TOML"),
         ('name = "a/b"\n', "name: 'a/b' is not a usable robot name"),
-        ('extends = "missing.toml"\n', "missing.toml: no such config file"),
+        ('extends = "missing.toml"\n', "missing.toml nor missing: no robot config of that name"),
     ],
 )
 def test_bad_files_name_the_file_and_key(tmp_path: Path, text: str, message: str) -> None:

@@ -1,8 +1,8 @@
-"""``python -m icefloe.services.viz``: a live Rerun view of a robot, from a laptop.
+"""``python -m icefloe.services.viz`` (or ``icefloe viz``): a live Rerun view of a robot, from a laptop.
 
-    python -m icefloe.services.viz --connect tcp/penguin1.local:7447            # every robot, native viewer
-    python -m icefloe.services.viz --connect tcp/10.0.0.5:7447 --robot penguin1 --serve
-    python -m icefloe.services.viz --robot sim --save run.rrd --duration 60    # record, no viewer
+    icefloe viz --connect tcp/penguin1.local:7447            # every robot on that bus, native viewer
+    icefloe viz --connect tcp/10.0.0.5:7447 --robot penguin1 --serve
+    icefloe viz --robot sim --save run.rrd --duration 60     # record, no viewer
 """
 
 from __future__ import annotations
@@ -13,43 +13,35 @@ from collections.abc import Sequence
 
 from icefloe.runtime import run
 
-from .app import VizOptions, main
+from .options import add_arguments, options_from
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The viz options (the lead's ``icefloe viz`` subcommand adds the same ones)."""
-    parser.add_argument("--robot", help="show only this robot (default: every robot found on the bus)")
-    sink = parser.add_mutually_exclusive_group()
-    sink.add_argument("--serve", action="store_true",
-                      help="serve a web viewer and a gRPC endpoint instead of spawning a native viewer")
-    sink.add_argument("--save", metavar="FILE.rrd", help="record to a file instead of showing a viewer")
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    parser.add_argument("--web-port", type=int, default=VizOptions.web_port)
-    parser.add_argument("--grpc-port", type=int, default=VizOptions.grpc_port)
-    parser.add_argument("--memory-limit", default=VizOptions.memory_limit,
-                        help="data kept in the viewer/server before the oldest is dropped, e.g. 25%% or 2GiB")
-
-
-def options_from(args: argparse.Namespace) -> VizOptions:
-    return VizOptions(robot=args.robot, serve=args.serve, save=args.save, duration=args.duration,
-                      web_port=args.web_port, grpc_port=args.grpc_port, memory_limit=args.memory_limit)
-
-
-def cli(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m icefloe.services.viz", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    # The options every service takes, handed on to `run` below.
-    parser.add_argument("--config", help="robot config: a TOML file or a name in deploy/robots (default: sim)")
-    parser.add_argument("--connect", action="append", help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447")
-    parser.add_argument("--log-level", default="INFO")
+def add_service_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options every service takes (handed on to `run`), then the viz options."""
+    parser.add_argument("--config", help="robot config: a name (sim, penguin1) or a path to a .toml file")
+    parser.add_argument("--connect", action="append", metavar="ENDPOINT",
+                        help="Zenoh endpoint of the robot's router, e.g. tcp/10.0.0.5:7447")
+    parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING or ERROR (default INFO)")
     add_arguments(parser)
-    args = parser.parse_args(argv)
+
+
+def start(args: argparse.Namespace) -> None:
+    """Run the viz service with parsed options until it ends or Ctrl-C."""
+    from .app import main  # imports Rerun (the `viz` extra)
+
     common = ["--log-level", args.log_level]
     if args.config:
         common += ["--config", args.config]
     for endpoint in args.connect or []:
         common += ["--connect", endpoint]
     run(functools.partial(main, options=options_from(args)), common, description="icefloe viz")
+
+
+def cli(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="icefloe viz", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_service_arguments(parser)
+    start(parser.parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -35,27 +35,10 @@ from icefloe.worldmap import load_world
 from .blueprint import blueprint
 from .decimate import Decimator
 from .logging_rr import RobotLogger
+from .options import VizOptions
 
 APP_ID = "icefloe"
 DISCOVERY_INTERVAL_S = 1.0
-
-
-@dataclass(frozen=True)
-class VizOptions:
-    """What to show and where (the command-line options of ``icefloe viz``)."""
-
-    robot: str | None = None
-    """Follow only this robot; None = every robot that has liveliness tokens."""
-    serve: bool = False
-    """Serve a web viewer (and a gRPC endpoint for native viewers) instead of spawning one."""
-    save: str | None = None
-    """Record to this .rrd file instead of showing a viewer."""
-    duration: float | None = None
-    """Stop after this many seconds (None = until SIGINT/SIGTERM)."""
-    web_port: int = 9090
-    grpc_port: int = 9876
-    memory_limit: str = "25%"
-    """How much the viewer (or the ``--serve`` server) keeps before dropping the oldest data."""
 
 
 @dataclass(frozen=True)

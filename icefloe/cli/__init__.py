@@ -1,0 +1,52 @@
+"""The `icefloe` command: one small module per group of verbs, as ros2cli does.
+
+    robot.py     up, router, credentials, config     run and set up a robot
+    bus.py       status, topics, echo, hz, pub, query  look at and talk to the bus
+    schemas.py   schemas                             the JSON Schemas of the messages
+    viz.py       viz                                 the Rerun view of robots
+
+A verb module has a ``register(verbs)`` function that adds its sub-parsers, each with
+``set_defaults(run=<function of the parsed args returning an exit status>)``. To add a verb
+group, write the module and name it in `VERB_MODULES`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from ..errors import IcefloeError
+
+VERB_MODULES = ("robot", "bus", "schemas", "viz")
+"""The verb modules of this package, in the order `icefloe --help` lists their verbs."""
+
+EPILOG = """\
+A robot is named by its config: a name (sim, penguin1: your own configs in
+~/.config/icefloe/robots/ first, then the shipped ones) or a path to a .toml file.
+KEY is a name from the key table (odom/pose) on that robot, or a full key
+(icefloe/sim/odom/pose). Every bus verb takes --connect tcp/<robot-ip>:7447 and
+--credentials FILE. `icefloe VERB --help` explains a verb.
+"""
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="icefloe", description="The icefloe robot stack: run a robot, look at its bus, drive it.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    verbs = p.add_subparsers(dest="verb", required=True, metavar="VERB")
+    for name in VERB_MODULES:
+        importlib.import_module(f"{__name__}.{name}").register(verbs)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parser().parse_args(sys.argv[1:] if argv is None else list(argv))
+    try:
+        return int(args.run(args) or 0)
+    except IcefloeError as exc:
+        print(f"icefloe: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130

@@ -1,0 +1,123 @@
+"""Verbs that run and set up a robot: up, router, credentials, config."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import msgspec
+
+from .. import config as config_mod
+from ..config import RobotConfig
+from ..errors import ConfigError
+from .common import add_config_argument
+
+
+def up(args: argparse.Namespace) -> int:
+    from .. import launcher
+
+    path = config_mod.find(args.config)
+    cfg = config_mod.load(path)
+    if args.sim and cfg.board.backend != "sim":
+        path = sim_override(path, cfg)
+        cfg = config_mod.load(path)
+    services = args.only.split(",") if args.only else list(cfg.services)
+    if not args.only and not args.no_viz and can_show_viewer():
+        services.append("viz")  # the laptop's view of the robot
+    skip = args.skip.split(",") if args.skip else []
+    launcher.up(cfg, path, [s for s in services if s not in skip])
+    return 0
+
+
+def sim_override(path: Path, cfg: RobotConfig) -> Path:
+    """A config that extends ``path`` with the simulated board (for `up --sim`)."""
+    out = cfg.runtime_dir / "sim-override.toml"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    services = cfg.services if "sim" in cfg.services else ["sim", *cfg.services]
+    out.write_text(f'extends = "{path.resolve()}"\nservices = {json.dumps(services)}\n\n'
+                   '[board]\nbackend = "sim"\nserial_port = "{run_dir}/ttyPPI"\n')
+    return out
+
+
+def can_show_viewer() -> bool:
+    try:
+        import rerun  # noqa: F401
+    except ImportError:
+        return False
+    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def router(args: argparse.Namespace) -> int:
+    from .. import router as router_mod
+    from ..runtime import run
+
+    argv = ["--config", args.config] if args.config else []
+    if not args.lab:
+        run(router_mod.main, argv)
+        return 0
+    owners = router_mod.lab_owners(Path(args.lab))
+
+    async def lab(config: RobotConfig) -> None:
+        names = ", ".join(robot for robot, _, _ in owners)
+        await router_mod.serve(config, router_mod.router_config(config, owners), f"lab router for {names}")
+
+    run(lab, argv)
+    return 0
+
+
+def credentials(args: argparse.Namespace) -> int:
+    from ..credentials import make, read
+
+    cfg = config_mod.load(args.config)
+    if not cfg.zenoh.credentials:
+        raise ConfigError(f"{cfg.source}: zenoh.credentials is not set: say where the file goes")
+    port = cfg.zenoh.listen[0].rsplit(":", 1)[-1] if cfg.zenoh.listen else "7447"
+    connect = [f"tcp/{args.host}:{port}"] if args.host else []
+    path, created = make(cfg.zenoh.credentials, cfg.name, connect, replace=args.replace)
+    # The password is printed only on request (--sheet), never logged.
+    print(f"{'made' if created else 'kept'} {path} for robot {cfg.name!r} (mode 0600)")
+    if args.sheet:
+        c = read(path)
+        print(f"\n  icefloe robot {c.robot!r}\n  user:     {c.user}\n  password: {c.password}\n"
+              f"  connect:  {', '.join(c.connect) or '(the robot address), port 7447'}\n\n"
+              f"  Save these four lines as {c.robot}.credentials and run\n"
+              f"  icefloe status --credentials {c.robot}.credentials\n")
+    return 0
+
+
+def show_config(args: argparse.Namespace) -> int:
+    cfg = config_mod.load(args.config)
+    print(json.dumps(msgspec.to_builtins(cfg), indent=2))
+    return 0
+
+
+def register(verbs: argparse._SubParsersAction) -> None:
+    p = verbs.add_parser("up", help="run a robot: its router and every service (default: the simulated robot)",
+                         description="Run a robot's router and services as processes, each restarted if it "
+                                     "dies; Ctrl-C stops them all.")
+    add_config_argument(p, positional=True)
+    p.add_argument("--sim", action="store_true", help="use the simulated board whatever the config says")
+    p.add_argument("--no-viz", action="store_true", help="do not open the Rerun viewer")
+    p.add_argument("--only", metavar="A,B", help="comma-separated services to run (instead of the config's list)")
+    p.add_argument("--skip", metavar="A,B", help="comma-separated services not to run")
+    p.set_defaults(run=up)
+
+    p = verbs.add_parser("router", help="run only a robot's Zenoh router, or a lab router (--lab)")
+    add_config_argument(p, positional=True)
+    p.add_argument("--lab", metavar="DIR", help="folder of robots' credentials files: route and guard all of them")
+    p.set_defaults(run=router)
+
+    p = verbs.add_parser("credentials", help="make a robot's credentials file (once), or print its sheet")
+    add_config_argument(p, positional=True)
+    p.add_argument("--host", help="the robot's address, written into the file for laptops")
+    p.add_argument("--replace", action="store_true", help="make a new password even if one exists")
+    p.add_argument("--sheet", action="store_true",
+                   help="print a sheet with the password, to hand to whoever has the robot")
+    p.set_defaults(run=credentials)
+
+    p = verbs.add_parser("config", help="check a robot config and print it resolved")
+    add_config_argument(p, positional=True)
+    p.set_defaults(run=show_config)
