@@ -76,10 +76,12 @@ class Counters:
     seq_gaps: int = 0
     """v2: valid frames whose seq was not the previous one + 1."""
     watchdog_trips: int = 0
+    rejected: int = 0
+    """Bad frames of any kind, when the board says only that (the gateware)."""
 
     @property
     def bad_frames(self) -> int:
-        return self.bad_length + self.bad_crc + self.bad_opcode
+        return self.bad_length + self.bad_crc + self.bad_opcode + self.rejected
 
 
 class IcoBoardModel:
@@ -132,12 +134,12 @@ class IcoBoardModel:
         self.counters.frames += 1
         if self._corrupt_in:
             self._corrupt_in -= 1
-            frame = self._flip(frame)
+            frame = flip_bit(frame, self._rng)
         self.last_frame = frame
         reply = self._v1(frame) if self.wire.version == 1 else self._v2(frame, now)
         if self._corrupt_out:
             self._corrupt_out -= 1
-            reply = self._flip(reply)
+            reply = flip_bit(reply, self._rng)
         return reply
 
     def tick(self, now: float) -> None:
@@ -215,13 +217,15 @@ class IcoBoardModel:
         else:
             self.counters.bad_opcode += 1
 
-    def _flip(self, frame: bytes) -> bytes:
-        if not frame:
-            return frame
-        bit = self._rng.randrange(len(frame) * 8)
-        out = bytearray(frame)
-        out[bit // 8] ^= 1 << (bit % 8)
-        return bytes(out)
+
+def flip_bit(frame: bytes, rng: random.Random) -> bytes:
+    """``frame`` with one random bit flipped (line noise, for the `corrupt` handles)."""
+    if not frame:
+        return frame
+    bit = rng.randrange(len(frame) * 8)
+    out = bytearray(frame)
+    out[bit // 8] ^= 1 << (bit % 8)
+    return bytes(out)
 
 
 def _opcode(frame: bytes) -> Op:
@@ -232,18 +236,33 @@ def _opcode(frame: bytes) -> Op:
         return Op.EMPTY
 
 
-class IcoBoardSim:
-    """`IcoBoardModel` behind the datagram socket ``board.sim_socket``, with its own I/O thread.
+class BoardModel(Protocol):
+    """What `IcoBoardSim` needs of a board model (`IcoBoardModel`, or the gateware's)."""
 
+    counters: Counters
+    last_frame: bytes
+
+    def exchange(self, frame: bytes, now: float) -> bytes: ...
+    def tick(self, now: float) -> None: ...
+
+
+class IcoBoardSim:
+    """A board model behind the datagram socket ``board.sim_socket``, with its own I/O thread.
+
+    The model is `IcoBoardModel`, or any object with the same `exchange`, `tick`
+    and handles (the gateware: `icefloe.sim.icoboard_gateware.GatewareBoardModel`).
     The simulator's clock calls `tick` once per simulated millisecond; the
     socket thread answers exchanges at the latest tick's time. Both take
-    `lock`, which the clock also holds while it steps the world.
+    `lock`, which the clock also holds while it steps the world. A model with
+    an ``advance(now)`` method gets it called first, without `lock`: its own
+    time runs there (it locks what it needs by itself).
     """
 
-    def __init__(self, world: Wheels, board: Board, *, seed: int = 0) -> None:
+    def __init__(self, world: Wheels, board: Board, *, seed: int = 0,
+                 model: BoardModel | None = None) -> None:
         self.path = Path(board.sim_socket)
         self.lock = threading.RLock()
-        self.model = IcoBoardModel(world, Wire.for_board(board), seed=seed)
+        self.model: BoardModel = model or IcoBoardModel(world, Wire.for_board(board), seed=seed)
         self._now = 0.0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with contextlib.suppress(FileNotFoundError):
@@ -258,6 +277,9 @@ class IcoBoardSim:
                  board.actuators, self.path)
 
     def tick(self, now: float) -> None:
+        advance = getattr(self.model, "advance", None)
+        if advance is not None:
+            advance(now)
         with self.lock:
             self._now = now
             self.model.tick(now)
@@ -285,3 +307,6 @@ class IcoBoardSim:
         with contextlib.suppress(FileNotFoundError):
             if self.path.is_socket():
                 os.unlink(self.path)
+        close_model = getattr(self.model, "close", None)
+        if close_model is not None:
+            close_model()

@@ -17,13 +17,24 @@ from icefloe.errors import BadPayload
 from icefloe.schemas import messages as m
 from icefloe.sim.clock import SimClock
 from icefloe.sim.gpio import BUTTON, GpioLines
-from icefloe.sim.icoboard import IcoBoardSim
+from icefloe.sim.icoboard import BoardModel, IcoBoardSim
 from icefloe.sim.penguinpi import PenguinPiSim
 from icefloe.sim.world import World
 from icefloe.wire import penguinpi
 from icefloe.wire.icoboard import Descriptor
 
 log = logging.getLogger("icefloe.sim")
+
+
+def _icoboard_model(config: RobotConfig, world: World) -> BoardModel | None:
+    """The gateware as the board when the config asks for it (None: the Python model)."""
+    if config.sim.icoboard != "gateware":
+        return None
+    if config.board.protocol != 2:
+        raise ValueError("the icoBoard gateware speaks protocol v2 only ([board] protocol = 2)")
+    from icefloe.sim.icoboard_gateware import GatewareBoardModel  # needs the gateware extra
+
+    return GatewareBoardModel(world, config.board, clk_hz=config.sim.gateware_clk_hz, seed=world.seed)
 
 
 class Simulator:
@@ -38,7 +49,8 @@ class Simulator:
                            encoder_noise=sim.encoder_noise)
         self.board: IcoBoardSim | PenguinPiSim
         if config.board.kind == "icoboard":
-            self.board = IcoBoardSim(self.world, config.board, seed=self.world.seed)
+            self.board = IcoBoardSim(self.world, config.board, seed=self.world.seed,
+                                     model=_icoboard_model(config, self.world))
             self.kind = f"icoboard-v{config.board.protocol}"
             self.gpio = GpioLines(on_change=on_gpio)
             self._lock = self.board.lock

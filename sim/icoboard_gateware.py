@@ -1,0 +1,122 @@
+"""The simulated icoBoard as its real gateware: `icefloe.gateware` compiled, pins wired to the world.
+
+Chosen with ``[sim] icoboard = "gateware"`` in a robot config. It sits behind the
+same datagram socket as the Python model (`icefloe.sim.icoboard.IcoBoardSim`), so
+hwbridge and everything above it cannot tell the two apart. What differs is who
+answers: here every request is clocked bit by bit through the gateware's SPI
+pins, and the world is connected to its other pins:
+
+* the world's wheels drive the encoder pins: each simulated millisecond the
+  phases step to the world's counts, the steps spread evenly over the millisecond;
+* the PWM and direction pins drive the world's motors: the duty the world sees for
+  a millisecond is the fraction of that millisecond the PWM pin was high (signed
+  by the direction pin), as a motor averages it.
+
+The gateware runs in board time locked to simulated time: `advance` runs the
+clock cycles up to the simulator's ``now``, in short slices so an exchange never
+waits long; an exchange takes the cycles its bits take (SCK = clk / 8, the
+fastest rate the gateware takes with margin). Real time needs the FPGA clock
+scaled down (``sim.gateware_clk_hz``, default 2 MHz, i.e. 50x slower than the
+board's 100 MHz): docs/gateware.md has the measured speed.
+"""
+
+from __future__ import annotations
+
+import random
+import threading
+
+from icefloe.config import Board
+from icefloe.gateware.cxxsim import CompiledBoard
+from icefloe.wire.icoboard import Descriptor, Peripherals, Wire, duty_to_raw, raw_to_duty
+
+from .icoboard import Counters, Wheels, flip_bit
+
+SCK_HALF_CYCLES = 4
+"""SCK high and low for this many board clock cycles each (SCK = clk / 8)."""
+SLICE_CYCLES = 250
+"""`advance` runs at most this many cycles at a time, then lets a waiting exchange in."""
+
+
+class GatewareBoardModel:
+    """The icoBoard gateware as a board model: `exchange` and `tick` like `IcoBoardModel`'s."""
+
+    def __init__(self, world: Wheels, board: Board, *, clk_hz: float, seed: int = 0) -> None:
+        self.world = world
+        self.wire = Wire.for_board(board)
+        self.compiled = CompiledBoard(Peripherals.for_board(board), clk_hz=clk_hz, pwm_hz=board.pwm_hz)
+        self.counters = Counters()
+        self.last_frame = b""
+        self.pwm = [0] * self.wire.actuators
+        """Raw signed duty each motor saw over the last millisecond (32767 = 100 %)."""
+        self.running = False
+        self._pins = threading.Lock()      # the compiled board: one caller at a time
+        self._corrupt_in = 0
+        self._corrupt_out = 0
+        self._rng = random.Random(seed)
+
+    # ------------------------------------------------------------------ test handles
+
+    def corrupt(self, requests: int = 0, replies: int = 0) -> None:
+        """Flip one random bit in each of the next ``requests`` frames in / ``replies`` out."""
+        self._corrupt_in += requests
+        self._corrupt_out += replies
+
+    @property
+    def forced_descriptor(self) -> Descriptor | None:
+        return None
+
+    @forced_descriptor.setter
+    def forced_descriptor(self, value: Descriptor | None) -> None:
+        raise ValueError("the gateware answers START from the peripheral list it was built for; "
+                         "build it for another list ([board] sensors, actuators) instead")
+
+    @property
+    def duty(self) -> tuple[float, float]:
+        left, right = [*self.pwm, 0, 0][:2]
+        return raw_to_duty(left), raw_to_duty(right)
+
+    # ------------------------------------------------------------------ the board
+
+    def exchange(self, frame: bytes, now: float) -> bytes:
+        """One SPI exchange, clocked through the gateware's pins."""
+        self.counters.frames += 1
+        if self._corrupt_in:
+            self._corrupt_in -= 1
+            frame = flip_bit(frame, self._rng)
+        self.last_frame = frame
+        with self._pins:
+            reply = self.compiled.exchange(frame, half=SCK_HALF_CYCLES)
+        if self._corrupt_out:
+            self._corrupt_out -= 1
+            reply = flip_bit(reply, self._rng)
+        return reply
+
+    def advance(self, now: float) -> None:
+        """Run the board's clock up to ``now`` (s of simulated time), the encoders moving there."""
+        counts = self.world.counts()
+        target = self.compiled.cycles(now)
+        with self._pins:
+            self.compiled.set_encoders(counts)
+        while True:
+            with self._pins:
+                left = target - self._board_cycles()
+                if left <= 0:
+                    return
+                self.compiled.step(min(left, SLICE_CYCLES))
+
+    def tick(self, now: float) -> None:
+        """Called every simulated millisecond, after `advance`: the motors take the mean duty."""
+        with self._pins:
+            stats = self.compiled.read()
+        self.counters.watchdog_trips += stats.trips
+        self.counters.rejected += stats.frames_rejected
+        self.running = stats.running
+        self.pwm = [duty_to_raw(d) for d in stats.duty]
+        self.world.set_duty(*self.duty)
+
+    def _board_cycles(self) -> int:
+        return self.compiled.total_cycles
+
+    def close(self) -> None:
+        with self._pins:
+            self.compiled.close()
