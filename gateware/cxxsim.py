@@ -41,6 +41,7 @@ class _Stats(ctypes.Structure):
                 ("pwm_reverse", ctypes.c_uint64 * MAX_PERIPHERALS),
                 ("frames_valid", ctypes.c_uint32), ("frames_rejected", ctypes.c_uint32),
                 ("trips", ctypes.c_uint32), ("pwm_periods", ctypes.c_uint32),
+                ("last_valid_cycle", ctypes.c_uint64), ("last_high_cycle", ctypes.c_uint64),
                 ("running", ctypes.c_uint32), ("watchdog", ctypes.c_uint32),
                 ("pwm", ctypes.c_uint32), ("dir", ctypes.c_uint32)]
 
@@ -57,6 +58,10 @@ class Stats:
     frames_rejected: int
     trips: int
     pwm_periods: int
+    last_valid_cycle: int
+    """The cycle (of total_cycles) of the last valid frame."""
+    last_high_cycle: int
+    """The last cycle any PWM pin was high."""
     running: bool
     watchdog: bool
     pwm: int
@@ -195,4 +200,5 @@ class CompiledBoard:
         cycles = max(1, s.cycles)
         duty = tuple((s.pwm_high[i] - 2 * s.pwm_reverse[i]) / cycles for i in range(self._n))
         return Stats(s.cycles, s.total_cycles, duty, s.frames_valid, s.frames_rejected, s.trips,
-                     s.pwm_periods, bool(s.running), bool(s.watchdog), s.pwm, s.dir)
+                     s.pwm_periods, s.last_valid_cycle, s.last_high_cycle, bool(s.running),
+                     bool(s.watchdog), s.pwm, s.dir)

@@ -30,6 +30,8 @@ struct Stats {
     uint32_t frames_rejected;
     uint32_t trips;             // watchdog trips
     uint32_t pwm_periods;       // PWM periods begun (output 0)
+    uint64_t last_valid_cycle;  // total_cycles at the last valid frame (kept across reads)
+    uint64_t last_high_cycle;   // total_cycles when a PWM pin was last high (kept across reads)
     uint32_t running;           // levels now
     uint32_t watchdog;
     uint32_t pwm;
@@ -58,6 +60,8 @@ struct Board {
                 if (dir >> i & 1) stats.pwm_reverse[i]++;
             }
         }
+        if (pwm) stats.last_high_cycle = stats.total_cycles;
+        if (top.p_frame__valid.get<bool>()) stats.last_valid_cycle = stats.total_cycles;
         stats.frames_valid += top.p_frame__valid.get<bool>();
         stats.frames_rejected += top.p_frame__rejected.get<bool>();
         stats.trips += top.p_tripped.get<bool>();
@@ -175,9 +179,11 @@ void ico_read(void *handle, Stats *out) {
     board->stats.pwm = board->top.p_pwm.get<uint32_t>();
     board->stats.dir = board->top.p_dir.get<uint32_t>();
     *out = board->stats;
-    const uint64_t total = board->stats.total_cycles;
+    const Stats kept = board->stats;
     board->stats = Stats{};
-    board->stats.total_cycles = total;
+    board->stats.total_cycles = kept.total_cycles;
+    board->stats.last_valid_cycle = kept.last_valid_cycle;
+    board->stats.last_high_cycle = kept.last_high_cycle;
 }
 
 }  // extern "C"

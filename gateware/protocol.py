@@ -21,7 +21,9 @@ documents it:
 
 The reply bytes are worked out one byte ahead: the SPI peripheral takes the
 next byte the moment the previous one is complete, so the byte after the
-opcode (the ack) is the only one that cannot depend on it, and does not.
+opcode (the ack) is the only one that cannot depend on it, and does not. Each
+byte is ready in a register a cycle after the previous one was taken, and the
+frame's verdict a cycle after its last byte: what meets 100 MHz on the iCE40.
 """
 
 from __future__ import annotations
@@ -102,36 +104,46 @@ class ProtocolEngine(wiring.Component):
         crc_tx = Signal(8, init=0xFF)
         snapshot = [Signal(16, name=f"snapshot{i}") for i in range(self.m)]
         incoming = [Signal(8, name=f"incoming{i}") for i in range(WIDTH * self.n)]
+        selected = Signal()
+        m.d.sync += selected.eq(Mux(self.start, 1, Mux(self.end, 0, selected)))
 
-        length = Signal(6)
+        # Registered a cycle after what they depend on, to keep the logic between two
+        # flip-flops short enough for 100 MHz: there is a whole byte time to spare.
+        length = Signal(6)                     # bytes in an exchange of `op`
         with m.Switch(op):
             for code in Op:
                 with m.Case(code):
-                    m.d.comb += length.eq(self.length(code))
+                    m.d.sync += length.eq(self.length(code))
             with m.Default():
-                m.d.comb += length.eq(self.length(Op.EMPTY))
+                m.d.sync += length.eq(self.length(Op.EMPTY))
+        is_counts = Signal()
+        m.d.sync += is_counts.eq((op == Op.RECEIVE) | (op == Op.TRANSMIT))
 
         # ---------------------------------------------------------------- reply, one byte ahead
-        tx_index = Mux(self.start, 0, count + 1)
+        # `tx_next` is the byte the SPI peripheral takes at its next `tx_load`: the status while
+        # CS is high, then each next byte, worked out in the cycles after the previous load.
+        tx_next, next_index = Signal(8), Signal(6)
         status = Cat(self.running, self.watchdog, rejected)
         assert (Status.RUNNING, Status.WATCHDOG, Status.REJECTED) == (1, 2, 4)
-        is_counts = (op == Op.RECEIVE) | (op == Op.TRANSMIT)
         body = Signal(8)
-        with m.Switch(tx_index):
+        with m.Switch(next_index):
             for j in range(max(len(start_body), WIDTH * self.slots)):
                 with m.Case(HEADER_V2 + j):
                     from_start = start_body[j] if j < len(start_body) else 0
                     from_counts = snapshot[j // 2].word_select(1 - j % 2, 8) if j < WIDTH * self.m else 0
                     m.d.comb += body.eq(Mux(op == Op.START, from_start, Mux(is_counts, from_counts, 0)))
-        reply = Signal(8)
-        m.d.comb += reply.eq(
-            Mux(tx_index == 0, status,
-                Mux(tx_index == 1, last_seq,
-                    Mux(tx_index == length - 1, crc_tx ^ 0xFF,
-                        Mux(tx_index >= length, 0, body)))))
-        m.d.comb += self.tx_data.eq(reply)
-        with m.If(self.tx_load & (tx_index < length - 1)):
-            m.d.sync += crc_tx.eq(crc8_update(Mux(self.start, 0xFF, crc_tx), reply))
+        reply = Mux(next_index == 1, last_seq,
+                    Mux(next_index == length - 1, crc_tx ^ 0xFF,
+                        Mux(next_index >= length, 0, body)))
+        m.d.comb += self.tx_data.eq(tx_next)
+        with m.If(self.tx_load):
+            m.d.sync += next_index.eq(next_index + 1)
+            with m.If(next_index < length - 1):
+                m.d.sync += crc_tx.eq(crc8_update(Mux(self.start, 0xFF, crc_tx), tx_next))
+        with m.Elif(selected):
+            m.d.sync += tx_next.eq(reply)
+        with m.Else():
+            m.d.sync += [tx_next.eq(status), next_index.eq(0)]
 
         # ---------------------------------------------------------------- the frame coming in
         with m.If(self.start):
@@ -149,21 +161,23 @@ class ProtocolEngine(wiring.Component):
                 for k, byte in enumerate(incoming):
                     with m.Case(HEADER_V2 + k):
                         m.d.sync += byte.eq(self.rx_data)
+        # Is what has come in so far a valid frame? Ready long before CS rises.
+        frame_ok = Signal()
+        m.d.sync += frame_ok.eq((op <= max(Op)) & (count == length) & ~self.partial
+                                & (last_byte == (crc_before_last ^ 0xFF)) & (~is_counts | self.running))
 
         # ---------------------------------------------------------------- the watchdog
-        any_duty = Cat(*[self.duties[i] != 0 for i in range(self.n)]).any()
+        any_duty = Signal()
+        m.d.sync += any_duty.eq(Cat(*[self.duties[i] != 0 for i in range(self.n)]).any())
         with m.If(self.expired & self.running & any_duty):
             m.d.comb += self.tripped.eq(1)
             m.d.sync += [self.duties[i].eq(0) for i in range(self.n)]
-            m.d.sync += self.watchdog.eq(1)
+            m.d.sync += [self.watchdog.eq(1), any_duty.eq(0)]  # one trip, not one per cycle
 
         # ---------------------------------------------------------------- the frame ends
-        known = op <= max(Op)
-        whole = (count == length) & ~self.partial
-        crc_ok = last_byte == (crc_before_last ^ 0xFF)
-        allowed = ~is_counts | self.running
+        m.d.sync += self.clear_counts.eq(0)
         with m.If(self.end):
-            with m.If(known & whole & crc_ok & allowed):
+            with m.If(frame_ok):
                 m.d.comb += [self.frame_valid.eq(1), self.feed.eq(1)]
                 m.d.sync += last_seq.eq(seq)
                 with m.Switch(op):
@@ -177,7 +191,7 @@ class ProtocolEngine(wiring.Component):
                         m.d.sync += self.running.eq(0)
                         m.d.sync += [self.duties[i].eq(0) for i in range(self.n)]
                     with m.Case(Op.RESET):
-                        m.d.comb += self.clear_counts.eq(1)
+                        m.d.sync += self.clear_counts.eq(1)
                         m.d.sync += [self.duties[i].eq(0) for i in range(self.n)]
             with m.Else():
                 m.d.comb += self.frame_rejected.eq(1)

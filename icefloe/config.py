@@ -221,7 +221,7 @@ class Sim(Section):
     icoboard: Literal["python", "gateware"] = "python"
     """The simulated icoBoard: "python" (the protocol model, sim/icoboard.py) or "gateware"
     (the FPGA design itself, compiled, its pins wired to the world; docs/gateware.md)."""
-    gateware_clk_hz: float = 2e6
+    gateware_clk_hz: float = 1e6
     """icoboard = "gateware": the FPGA clock in the simulation, Hz (the board's is 100 MHz;
     scaled down so the simulation keeps real time)."""
 

@@ -22,6 +22,7 @@ board's 100 MHz): docs/gateware.md has the measured speed.
 
 from __future__ import annotations
 
+import logging
 import random
 import threading
 
@@ -31,8 +32,10 @@ from icefloe.wire.icoboard import Descriptor, Peripherals, Wire, duty_to_raw, ra
 
 from .icoboard import Counters, Wheels, flip_bit
 
-SCK_HALF_CYCLES = 4
-"""SCK high and low for this many board clock cycles each (SCK = clk / 8)."""
+log = logging.getLogger("icefloe.sim.icoboard")
+
+SCK_HALF_CYCLES = 3
+"""SCK high and low for this many board clock cycles each (SCK = clk / 6, the fastest that works)."""
 SLICE_CYCLES = 250
 """`advance` runs at most this many cycles at a time, then lets a waiting exchange in."""
 
@@ -49,6 +52,7 @@ class GatewareBoardModel:
         self.pwm = [0] * self.wire.actuators
         """Raw signed duty each motor saw over the last millisecond (32767 = 100 %)."""
         self.running = False
+        self._tripped = False
         self._pins = threading.Lock()      # the compiled board: one caller at a time
         self._corrupt_in = 0
         self._corrupt_out = 0
@@ -109,6 +113,13 @@ class GatewareBoardModel:
         with self._pins:
             stats = self.compiled.read()
         self.counters.watchdog_trips += stats.trips
+        if stats.trips:
+            self._tripped = True
+        elif self._tripped and stats.pwm == 0:  # report once the pins are seen low
+            self._tripped = False
+            after = (stats.last_high_cycle - stats.last_valid_cycle) / self.compiled.clk_hz
+            log.warning("icoBoard gateware watchdog: PWM pins low %.3f ms after the last valid frame",
+                        after * 1e3)
         self.counters.rejected += stats.frames_rejected
         self.running = stats.running
         self.pwm = [duty_to_raw(d) for d in stats.duty]
