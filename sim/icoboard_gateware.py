@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import random
 import threading
+import time
 
 from icefloe.config import Board
 from icefloe.gateware.cxxsim import CompiledBoard
@@ -54,6 +55,7 @@ class GatewareBoardModel:
         self.running = False
         self._tripped = False
         self._pins = threading.Lock()      # the compiled board: one caller at a time
+        self._waiting = 0                  # exchanges waiting for `_pins`
         self._corrupt_in = 0
         self._corrupt_out = 0
         self._rng = random.Random(seed)
@@ -88,8 +90,12 @@ class GatewareBoardModel:
             self._corrupt_in -= 1
             frame = flip_bit(frame, self._rng)
         self.last_frame = frame
-        with self._pins:
-            reply = self.compiled.exchange(frame, half=SCK_HALF_CYCLES)
+        self._waiting += 1  # `advance` lets us in before its next slice
+        try:
+            with self._pins:
+                reply = self.compiled.exchange(frame, half=SCK_HALF_CYCLES)
+        finally:
+            self._waiting -= 1
         if self._corrupt_out:
             self._corrupt_out -= 1
             reply = flip_bit(reply, self._rng)
@@ -102,6 +108,8 @@ class GatewareBoardModel:
         with self._pins:
             self.compiled.set_encoders(counts)
         while True:
+            while self._waiting:
+                time.sleep(0)  # a lock is not a queue: yield, or the next slice may win again
             with self._pins:
                 left = target - self._board_cycles()
                 if left <= 0:

@@ -26,6 +26,10 @@ from icefloe.wire.icoboard import Descriptor
 log = logging.getLogger("icefloe.sim")
 
 
+GATEWARE_CATCH_UP = 5
+"""Steps the clock may run back to back to catch up, with the gateware as the board (ms)."""
+
+
 def _icoboard_model(config: RobotConfig, world: World) -> BoardModel | None:
     """The gateware as the board when the config asks for it (None: the Python model)."""
     if config.sim.icoboard != "gateware":
@@ -64,7 +68,12 @@ class Simulator:
             firmware.daemon_alive_source = lambda: self.gpio.ack == 1
             self._lock = firmware.lock
         # Each simulated millisecond: the world moves, then the board and the lines see it.
-        self.clock = SimClock(self.world, [self.board, self.gpio])
+        # The gateware's watchdog counts board time: racing through a long backlog of steps
+        # with none of the host's frames in between would trip it. On an overloaded machine
+        # its simulated time slows down instead (steps dropped), as the world's does.
+        gateware = config.board.kind == "icoboard" and config.sim.icoboard == "gateware"
+        catch_up = GATEWARE_CATCH_UP if gateware else 100
+        self.clock = SimClock(self.world, [self.board, self.gpio], max_catch_up=catch_up)
 
     def start(self) -> None:
         self.clock.start()
