@@ -42,6 +42,8 @@ class BuildResult:
     luts: int
     """Logic cells (ICESTORM_LC: a LUT4 and a flip-flop each) used, of `luts_total`."""
     luts_total: int
+    lut4s: int
+    """LUT4s (SB_LUT4) in the synthesised netlist."""
     flip_flops: int
     """Flip-flops (SB_DFF*) in the synthesised netlist."""
     brams: int
@@ -53,8 +55,8 @@ class BuildResult:
     peripherals: Peripherals
 
     def summary(self) -> str:
-        return (f"{self.bitstream} in {self.seconds:.0f} s: {self.luts}/{self.luts_total} logic cells, "
-                f"{self.flip_flops} flip-flops, {self.brams}/{self.brams_total} block RAMs; "
+        return (f"{self.bitstream} in {self.seconds:.0f} s: {self.luts}/{self.luts_total} logic cells "
+                f"({self.lut4s} LUT4s, {self.flip_flops} flip-flops), {self.brams}/{self.brams_total} block RAMs; "
                 f"Fmax {self.fmax_mhz:.1f} MHz (constraint {self.target_mhz:.0f} MHz: "
                 f"{'met' if self.fmax_mhz >= self.target_mhz else 'NOT met'}); "
                 f"{len(self.peripherals.sensors)} encoders, {len(self.peripherals.actuators)} PWM outputs")
@@ -115,11 +117,12 @@ def _report(build_dir: Path, seconds: float, peripherals: Peripherals) -> BuildR
     if not clocks:
         raise GatewareError(f"no timing result in {build_dir / (NAME + '.tim')}")
     fmax, target = (float(v) for v in clocks[-1])
-    # Yosys' final `stat`: the last count of each flip-flop cell type.
+    # Yosys' final `stat` (it may list a cell type more than once: the last count is the total).
     stat = synth[synth.rfind("Printing statistics"):]
-    flip_flops = sum(int(n) for n in re.findall(r"^\s+(\d+)\s+SB_DFF\w*\s*$", stat, re.M))
-    flip_flops += sum(int(n) for n in re.findall(r"^\s+SB_DFF\w*\s+(\d+)\s*$", stat, re.M))
+    cells = {name: int(n) for n, name in re.findall(r"^\s+(\d+)\s+(SB_\w+)\s*$", stat, re.M)}
+    flip_flops = sum(n for name, n in cells.items() if name.startswith("SB_DFF"))
+    lut4s = cells.get("SB_LUT4", 0)
     luts, luts_total = used("ICESTORM_LC")
     brams, brams_total = used("ICESTORM_RAM")
-    return BuildResult(build_dir / f"{NAME}.bin", seconds, luts, luts_total, flip_flops, brams, brams_total,
-                       fmax, target, peripherals)
+    return BuildResult(build_dir / f"{NAME}.bin", seconds, luts, luts_total, lut4s, flip_flops, brams,
+                       brams_total, fmax, target, peripherals)
