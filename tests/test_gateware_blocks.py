@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+from pathlib import Path
 
 import pytest
 from amaranth.sim import Simulator
@@ -10,6 +11,7 @@ from amaranth.sim import Simulator
 from icefloe.errors import GatewareError
 from icefloe.gateware.bench import phases, spi_exchange
 from icefloe.gateware.core import check_peripherals
+from icefloe.gateware.platform import pin_map_markdown
 from icefloe.gateware.pwm import PwmOutput
 from icefloe.gateware.quadrature import QuadratureDecoder
 from icefloe.gateware.spi import SpiPeripheral
@@ -181,3 +183,8 @@ def test_the_gateware_builds_encoders_and_pwm_only() -> None:
         check_peripherals(Peripherals.of(9, 2))
     with pytest.raises(GatewareError, match=r"kind 'pwm' only, not \['servo'\]"):
         check_peripherals(Peripherals(("encoder",), ("pwm", "servo")))
+
+
+def test_the_documented_pin_map_is_the_platforms() -> None:
+    docs = (Path(__file__).resolve().parent.parent / "docs" / "gateware.md").read_text()
+    assert pin_map_markdown() in docs, "docs/gateware.md: paste `icefloe gateware pins` again"
