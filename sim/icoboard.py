@@ -84,31 +84,15 @@ class Counters:
         return self.bad_length + self.bad_crc + self.bad_opcode + self.rejected
 
 
-class IcoBoardModel:
-    """The board's logic: `exchange` answers one SPI exchange, `tick` runs the watchdog."""
+class LineHandles:
+    """What every icoBoard model offers the simulator's handles: line noise, and the duty applied."""
 
-    def __init__(self, world: Wheels, wire: Wire, *, seed: int = 0) -> None:
-        """``wire``: the protocol and board shape; ``seed``: the bit flips of `corrupt`."""
-        self.world = world
-        self.wire = wire
-        self.counters = Counters()
-        self.running = False
-        self.pwm = [0] * wire.actuators
+    def __init__(self, seed: int) -> None:
+        self.pwm: list[int] = []
         """Raw signed duty applied to each actuator now (32767 = 100 %)."""
-        self.last_frame = b""
-        """The last request received, as it arrived (after any injected corruption)."""
-        self.forced_descriptor: Descriptor | None = None
-        """Test handle: what a v2 START reply says instead of the truth."""
-        self._offset = (0, 0)              # world counts at the last RESET
-        self._sample = (0,) * wire.sensors  # v1: counts sampled at the previous exchange
-        self._last_seq = 0                 # v2: seq of the last valid frame (the ack)
-        self._status = Status(0)           # v2: WATCHDOG and REJECTED flags
-        self._last_valid = 0.0             # v2: time of the last valid frame, s
         self._corrupt_in = 0
         self._corrupt_out = 0
         self._rng = random.Random(seed)
-
-    # ------------------------------------------------------------------ test handles
 
     def corrupt(self, requests: int = 0, replies: int = 0) -> None:
         """Flip one random bit in each of the next ``requests`` frames in / ``replies`` out."""
@@ -121,6 +105,42 @@ class IcoBoardModel:
         left, right = [*self.pwm, 0, 0][:2]
         return raw_to_duty(left), raw_to_duty(right)
 
+    def _line_in(self, frame: bytes) -> bytes:
+        """A request as it arrives: with a flipped bit while `corrupt` asks for it."""
+        if not self._corrupt_in:
+            return frame
+        self._corrupt_in -= 1
+        return flip_bit(frame, self._rng)
+
+    def _line_out(self, reply: bytes) -> bytes:
+        """A reply as it reaches the host (likewise)."""
+        if not self._corrupt_out:
+            return reply
+        self._corrupt_out -= 1
+        return flip_bit(reply, self._rng)
+
+
+class IcoBoardModel(LineHandles):
+    """The board's logic: `exchange` answers one SPI exchange, `tick` runs the watchdog."""
+
+    def __init__(self, world: Wheels, wire: Wire, *, seed: int = 0) -> None:
+        """``wire``: the protocol and board shape; ``seed``: the bit flips of `corrupt`."""
+        super().__init__(seed)
+        self.world = world
+        self.wire = wire
+        self.counters = Counters()
+        self.running = False
+        self.pwm = [0] * wire.actuators
+        self.last_frame = b""
+        """The last request received, as it arrived (after any injected corruption)."""
+        self.forced_descriptor: Descriptor | None = None
+        """Test handle: what a v2 START reply says instead of the truth."""
+        self._offset = (0, 0)              # world counts at the last RESET
+        self._sample = (0,) * wire.sensors  # v1: counts sampled at the previous exchange
+        self._last_seq = 0                 # v2: seq of the last valid frame (the ack)
+        self._status = Status(0)           # v2: WATCHDOG and REJECTED flags
+        self._last_valid = 0.0             # v2: time of the last valid frame, s
+
     # ------------------------------------------------------------------ the board
 
     def counts(self) -> tuple[int, ...]:
@@ -132,15 +152,9 @@ class IcoBoardModel:
     def exchange(self, frame: bytes, now: float) -> bytes:
         """One full-duplex SPI exchange at ``now`` (s): the host's bytes in, the board's out."""
         self.counters.frames += 1
-        if self._corrupt_in:
-            self._corrupt_in -= 1
-            frame = flip_bit(frame, self._rng)
-        self.last_frame = frame
+        frame = self.last_frame = self._line_in(frame)
         reply = self._v1(frame) if self.wire.version == 1 else self._v2(frame, now)
-        if self._corrupt_out:
-            self._corrupt_out -= 1
-            reply = flip_bit(reply, self._rng)
-        return reply
+        return self._line_out(reply)
 
     def tick(self, now: float) -> None:
         """Called every simulated millisecond: the v2 watchdog."""

@@ -23,15 +23,14 @@ board's 100 MHz): docs/gateware.md has the measured speed.
 from __future__ import annotations
 
 import logging
-import random
 import threading
 import time
 
 from icefloe.config import Board
 from icefloe.gateware.cxxsim import CompiledBoard
-from icefloe.wire.icoboard import Descriptor, Peripherals, Wire, duty_to_raw, raw_to_duty
+from icefloe.wire.icoboard import Descriptor, Peripherals, Wire, duty_to_raw
 
-from .icoboard import Counters, Wheels, flip_bit
+from .icoboard import Counters, LineHandles, Wheels
 
 log = logging.getLogger("icefloe.sim.icoboard")
 
@@ -41,31 +40,23 @@ SLICE_CYCLES = 250
 """`advance` runs at most this many cycles at a time, then lets a waiting exchange in."""
 
 
-class GatewareBoardModel:
+class GatewareBoardModel(LineHandles):
     """The icoBoard gateware as a board model: `exchange` and `tick` like `IcoBoardModel`'s."""
 
     def __init__(self, world: Wheels, board: Board, *, clk_hz: float, seed: int = 0) -> None:
+        super().__init__(seed)
         self.world = world
         self.wire = Wire.for_board(board)
         self.compiled = CompiledBoard(Peripherals.for_board(board), clk_hz=clk_hz, pwm_hz=board.pwm_hz)
         self.counters = Counters()
         self.last_frame = b""
-        self.pwm = [0] * self.wire.actuators
-        """Raw signed duty each motor saw over the last millisecond (32767 = 100 %)."""
+        self.pwm = [0] * self.wire.actuators  # what each motor saw over the last millisecond
         self.running = False
         self._tripped = False
         self._pins = threading.Lock()      # the compiled board: one caller at a time
         self._waiting = 0                  # exchanges waiting for `_pins`
-        self._corrupt_in = 0
-        self._corrupt_out = 0
-        self._rng = random.Random(seed)
 
     # ------------------------------------------------------------------ test handles
-
-    def corrupt(self, requests: int = 0, replies: int = 0) -> None:
-        """Flip one random bit in each of the next ``requests`` frames in / ``replies`` out."""
-        self._corrupt_in += requests
-        self._corrupt_out += replies
 
     @property
     def forced_descriptor(self) -> Descriptor | None:
@@ -76,30 +67,19 @@ class GatewareBoardModel:
         raise ValueError("the gateware answers START from the peripheral list it was built for; "
                          "build it for another list ([board] sensors, actuators) instead")
 
-    @property
-    def duty(self) -> tuple[float, float]:
-        left, right = [*self.pwm, 0, 0][:2]
-        return raw_to_duty(left), raw_to_duty(right)
-
     # ------------------------------------------------------------------ the board
 
     def exchange(self, frame: bytes, now: float) -> bytes:
         """One SPI exchange, clocked through the gateware's pins."""
         self.counters.frames += 1
-        if self._corrupt_in:
-            self._corrupt_in -= 1
-            frame = flip_bit(frame, self._rng)
-        self.last_frame = frame
+        frame = self.last_frame = self._line_in(frame)
         self._waiting += 1  # `advance` lets us in before its next slice
         try:
             with self._pins:
                 reply = self.compiled.exchange(frame, half=SCK_HALF_CYCLES)
         finally:
             self._waiting -= 1
-        if self._corrupt_out:
-            self._corrupt_out -= 1
-            reply = flip_bit(reply, self._rng)
-        return reply
+        return self._line_out(reply)
 
     def advance(self, now: float) -> None:
         """Run the board's clock up to ``now`` (s of simulated time), the encoders moving there."""

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from conftest import ROOT
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]  # a fresh machine first compiles the YoWASP tools
 
 
 def test_the_bitstream_builds_and_meets_100_mhz(tmp_path: Path) -> None:

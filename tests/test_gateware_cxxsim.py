@@ -21,6 +21,8 @@ FASTEST_HALF = 3
 
 wire = Wire(2)
 
+pytestmark = pytest.mark.timeout(600)  # the first compile on a fresh machine also compiles Yosys (WebAssembly)
+
 
 @pytest.fixture(scope="module")
 def board_type():

@@ -26,7 +26,7 @@ from icefloe.schemas import messages as m
 from icefloe.services.hwbridge.shm import Shared, block_name
 from icefloe.wire.icoboard import Peripherals
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]  # the first compile of the gateware
 
 GATEWARE = ('[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 2\n'
             '[sim]\nicoboard = "gateware"\nseed = 1\n')
