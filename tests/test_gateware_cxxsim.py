@@ -7,6 +7,8 @@ The figures docs/gateware.md quotes are measured here (run with ``-s`` to see th
 
 from __future__ import annotations
 
+import random
+
 import pytest
 from icoboard_vectors import DUTY_TOLERANCE, SCENARIOS, Duty, Move, Send, Trips, Wait
 
@@ -113,3 +115,58 @@ def test_sample_to_action_delay_at_1_khz(board_type) -> None:
     print(f"\nsample-to-action: {delay * 1e6:.1f} us at 1 kHz with SCK 1 MHz "
           f"(period 1000 us + exchange + wait for the PWM period: {waited / CLK_HZ * 1e6:.1f} us)")
     assert delay < 1e-3 + 0.2e-3
+
+
+class _Still:
+    """Wheels that do not move (the fuzz test is about frames)."""
+
+    def set_duty(self, left: float, right: float) -> None:
+        pass
+
+    def counts(self) -> tuple[int, int]:
+        return (0, 0)
+
+
+def _hostile_frames(rng: random.Random, count: int):
+    """Valid frames of every opcode, the same with one bit flipped, cut short or too long, and garbage."""
+    seq = 0
+    for _ in range(count):
+        seq = (seq + 1) & 0xFF
+        op = rng.choice(list(Op))
+        duties = [rng.randrange(-32768, 32768) for _ in range(2)]
+        frame = bytearray(wire.request(op, seq=seq, duties=duties if op == Op.TRANSMIT else ()))
+        kind = rng.random()
+        if kind < 0.2:
+            frame[rng.randrange(len(frame))] ^= 1 << rng.randrange(8)
+        elif kind < 0.3:
+            frame = frame[: rng.randrange(len(frame))]
+        elif kind < 0.4:
+            frame += bytes(rng.randrange(1, 4))
+        elif kind < 0.5:
+            frame = bytearray(rng.randbytes(rng.randrange(0, 12)))
+        yield bytes(frame)
+
+
+def test_hostile_frames_get_the_same_answers_from_the_gateware_and_the_python_model(board_type) -> None:
+    """1000 frames, a third of them broken: the gateware and the model agree on every reply."""
+    from icefloe.sim.icoboard import IcoBoardModel
+
+    board, model = board_type(), IcoBoardModel(_Still(), wire)
+    rng = random.Random(20)
+    for n, frame in enumerate(_hostile_frames(rng, 1000)):
+        got, want = board.exchange(frame, half=5), model.exchange(frame, 0.0)
+        if frame and frame[0] <= max(Op) and len(frame) == wire.length(Op(frame[0])):
+            assert got == want, (n, frame.hex(" "), got.hex(" "), want.hex(" "))
+        elif frame:
+            assert got[:1] == want[:1], (n, frame.hex(" "), got.hex(" "), want.hex(" "))
+    assert model.counters.bad_frames > 300 and model.counters.frames - model.counters.bad_frames > 300
+    # Still answering, and the same duty applied: after the flood, and after one more good TRANSMIT.
+    for frame in (None, wire.request(Op.START, seq=1),
+                  wire.request(Op.TRANSMIT, seq=2, duties=[duty_to_raw(0.3), duty_to_raw(-0.6)])):
+        if frame:
+            assert board.exchange(frame, half=5) == model.exchange(frame, 0.0)
+        board.step(board.cycles(0.1e-3))  # the last duty has been taken (at most one 50 us PWM period)
+        board.read()
+        board.step(board.cycles(1e-3))
+        assert board.read().duty == pytest.approx(model.duty, abs=DUTY_TOLERANCE)
+    assert model.duty == pytest.approx((0.3, -0.6), abs=1e-4)
