@@ -13,7 +13,7 @@ We change CIPO just *after* the rising edge we sampled on (2-3 cycles later,
 once the synchronizer has shown it), not at the falling edge: the controller
 has already sampled, and the next bit then has almost a whole SCK period to
 reach the controller before it samples again. That is what sets the highest SCK
-(docs/gateware.md: measured in `tests/test_gateware_spi.py`).
+(docs/gateware.md; measured in `tests/test_gateware_cxxsim.py`).
 
 Byte 0 is loaded at the falling edge of CS, also 2-3 cycles late; its first bit
 must be on CIPO before the first rising edge of SCK. The protocol makes that

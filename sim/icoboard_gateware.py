@@ -14,10 +14,10 @@ pins, and the world is connected to its other pins:
 
 The gateware runs in board time locked to simulated time: `advance` runs the
 clock cycles up to the simulator's ``now``, in short slices so an exchange never
-waits long; an exchange takes the cycles its bits take (SCK = clk / 8, the
-fastest rate the gateware takes with margin). Real time needs the FPGA clock
-scaled down (``sim.gateware_clk_hz``, default 2 MHz, i.e. 50x slower than the
-board's 100 MHz): docs/gateware.md has the measured speed.
+waits long; an exchange takes the cycles its bits take (SCK = clk / 6, the
+fastest rate the gateware takes). Real time needs the FPGA clock scaled down
+(``sim.gateware_clk_hz``, default 1 MHz, i.e. 100x slower than the board's
+100 MHz): docs/gateware.md has the measured speed.
 """
 
 from __future__ import annotations
