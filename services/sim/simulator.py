@@ -36,8 +36,11 @@ def _icoboard_model(config: RobotConfig, world: World) -> BoardModel | None:
         return None
     if config.board.protocol != 2:
         raise ValueError("the icoBoard gateware speaks protocol v2 only ([board] protocol = 2)")
-    from icefloe.sim.icoboard_gateware import GatewareBoardModel  # needs the gateware extra
-
+    try:
+        from icefloe.sim.icoboard_gateware import GatewareBoardModel
+    except ImportError as exc:
+        raise ValueError(f'[sim] icoboard = "gateware" needs the gateware extra ({exc}): '
+                         "pip install -e '.[gateware]'") from None
     return GatewareBoardModel(world, config.board, clk_hz=config.sim.gateware_clk_hz, seed=world.seed)
 
 
