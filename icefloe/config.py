@@ -44,6 +44,7 @@ class Board(Section):
     spi_device: str = "/dev/spidev0.0"
     """icoBoard: the SPI device on the Pi."""
     spi_speed_hz: int = 1_000_000
+    """icoBoard: SPI clock, Hz (icefloe's gateware takes 100 kHz .. 16.7 MHz, docs/gateware.md)."""
     sim_socket: str = "{run_dir}/icoboard.sock"
     """icoBoard in sim: the simulator's datagram socket (one datagram = one SPI exchange)."""
     protocol: Literal[1, 2] = 2
