@@ -17,6 +17,8 @@ from icoboard_vectors import DUTY_TOLERANCE, SCENARIOS, Duty, Move, Send, Trips,
 from icefloe.gateware.bench import phases, spi_exchange
 from icefloe.gateware.core import IcoBoardCore
 
+pytestmark = pytest.mark.timeout(600)  # ~10 s of Python simulation on a quiet machine, 80 s seen on a busy one
+
 CLK_HZ = 1e6
 SCK_HZ = CLK_HZ / 8
 PWM_HZ = 2e3
