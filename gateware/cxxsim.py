@@ -126,15 +126,18 @@ class CompiledBoard:
         self.core = IcoBoardCore(self.peripherals, clk_hz=clk_hz, pwm_hz=pwm_hz)
         self.clk_hz = clk_hz
         self.library_path = compile_core(self.core, cache=cache)
-        lib = ctypes.CDLL(str(self.library_path))
+        lib = ctypes.CDLL(str(self.library_path))   # calls let other Python threads run meanwhile
+        # An exchange is short (tens of us) and someone is waiting for its reply: it keeps the
+        # GIL, so no other thread can take it between the call and the reply being sent.
+        self._quick = ctypes.PyDLL(str(self.library_path))
         lib.ico_new.restype = ctypes.c_void_p
         lib.ico_new.argtypes = [ctypes.c_uint32, ctypes.c_uint32]
         lib.ico_free.argtypes = [ctypes.c_void_p]
         lib.ico_encoders.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int64)]
         lib.ico_step.argtypes = [ctypes.c_void_p, ctypes.c_uint64]
-        lib.ico_exchange.restype = ctypes.c_uint64
-        lib.ico_exchange.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32,
-                                     ctypes.c_uint32, ctypes.c_uint32, ctypes.c_uint32, ctypes.c_uint32]
+        self._quick.ico_exchange.restype = ctypes.c_uint64
+        self._quick.ico_exchange.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32,
+                                             ctypes.c_uint32, ctypes.c_uint32, ctypes.c_uint32, ctypes.c_uint32]
         lib.ico_until_pwm.restype = ctypes.c_uint64
         lib.ico_until_pwm.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint32, ctypes.c_uint64]
         lib.ico_cycles.restype = ctypes.c_uint64
@@ -184,7 +187,7 @@ class CompiledBoard:
             half = max(1, round(self.clk_hz / (2 * (sck_hz or 1e6))))
         if len(frame) > len(self._rx):
             raise ValueError(f"a frame of at most {len(self._rx)} bytes, got {len(frame)}")
-        self.last_cs_fall = self._lib.ico_exchange(
+        self.last_cs_fall = self._quick.ico_exchange(
             self._handle, bytes(frame), self._rx, len(frame), half,
             half if lead is None else lead, 2 * half if gap is None else gap, setup)
         return self._rx.raw[: len(frame)]
