@@ -54,6 +54,7 @@ from . import config as config_mod
 from .config import RobotConfig
 from .credentials import GUEST_PASSWORD, GUEST_USER
 from .errors import BadPayload, ConfigError, NotReachable
+from .logs import LimitedLog, printable
 from .schemas import codec, keys
 from .schemas.keys import Topic
 from .schemas.messages import Log, Message
@@ -62,6 +63,12 @@ T = TypeVar("T", bound=Message)
 T2 = TypeVar("T2")
 MSGPACK = zenoh.Encoding(codec.MSGPACK)
 JSON = zenoh.Encoding(codec.JSON)
+MAX_QUERIES = 32
+"""Queries one queryable answers at once (`Node.queryable`)."""
+BUS_LOG_RATE = 20.0
+"""Log lines a service copies to the bus key ``log`` per second, on average (`_BusLogHandler`)."""
+BUS_LOG_BURST = 50
+"""... and at most this many at once."""
 
 
 def zenoh_config(
@@ -110,26 +117,6 @@ class RawSample:
     """time.monotonic() when the callback saw it."""
 
 
-class LimitedLog:
-    """At most `burst` warnings per second; the rest are counted and summarised."""
-
-    def __init__(self, log: logging.Logger, burst: int = 10) -> None:
-        self._log, self._burst = log, burst
-        self._window, self._count, self._suppressed = 0.0, 0, 0
-
-    def warning(self, text: str) -> None:
-        now = time.monotonic()
-        if now - self._window >= 1.0:
-            if self._suppressed:
-                self._log.warning("... and %d more like it in the last second", self._suppressed)
-            self._window, self._count, self._suppressed = now, 0, 0
-        self._count += 1
-        if self._count <= self._burst:
-            self._log.warning(text)
-        else:
-            self._suppressed += 1
-
-
 class Subscription(Generic[T]):
     """An async iterator over the messages of one key expression."""
 
@@ -155,7 +142,7 @@ class Subscription(Generic[T]):
         self._wake = asyncio.Event()
         self._wake_pending = False
         self._closed = False
-        self._warn = LimitedLog(node.log)
+        self._warn = node.limited
         self._sub = node.session.declare_subscriber(key_expr, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -192,7 +179,7 @@ class Subscription(Generic[T]):
                 return self._decode(raw)
             except BadPayload as exc:
                 self.rejected += 1
-                self._warn.warning(f"dropped: {exc}")
+                self._warn.warning(raw.key, "dropped: %s", exc)
 
     def pending(self) -> int:
         """Samples queued and not yet read."""
@@ -225,7 +212,7 @@ class Batches(Generic[T]):
         self._decode = decode
         self._deadline: float | None = None
         self._closed = False
-        self._warn = LimitedLog(node.log)
+        self._warn = node.limited
         self._sub = node.session.declare_subscriber(key_expr, zenoh.handlers.RingChannel(maxsize))
 
     def __aiter__(self) -> Batches[T]:
@@ -251,7 +238,7 @@ class Batches(Generic[T]):
                 batch.append(self._decode(raw))
             except BadPayload as exc:
                 self.rejected += 1
-                self._warn.warning(f"dropped: {exc}")
+                self._warn.warning(raw.key, "dropped: %s", exc)
         return batch
 
     def close(self) -> None:
@@ -305,6 +292,8 @@ class Node:
         self.robot = config.name
         self.mode = mode
         self.log = logging.getLogger(f"icefloe.{service}")
+        self.limited = LimitedLog(self.log)
+        """For lines about bad input: a few per second per kind (see `icefloe.logs`)."""
         self.session: zenoh.Session
         self._closables: list[Any] = []
         self._log_handler: _BusLogHandler | None = None
@@ -379,9 +368,13 @@ class Node:
     # ------------------------------------------------------------------ queries
 
     def queryable(self, topic: Topic, handler: Callable[[Any], Awaitable[Message]]) -> None:
-        """Answer queries on ``topic`` with ``await handler(request)``; bad requests get an error reply."""
+        """Answer queries on ``topic`` with ``await handler(request)``; bad requests get an error reply.
+
+        At most `MAX_QUERIES` are answered at once; more get a "busy" error reply at once, so a
+        flood of queries costs neither memory nor the event loop's time."""
         loop = asyncio.get_running_loop()
         key_expr = self.key(topic)
+        slots = threading.BoundedSemaphore(MAX_QUERIES)
 
         async def answer(query: zenoh.Query) -> None:
             try:
@@ -391,15 +384,22 @@ class Node:
                 reply = await handler(request)
                 query.reply(key_expr, codec.encode(reply), encoding=MSGPACK)
             except BadPayload as exc:
-                self.log.warning("rejected query: %s", exc)
-                query.reply_err(str(exc))
+                self.limited.warning(key_expr, "rejected query: %s", exc)
+                query.reply_err(printable(str(exc)))
             except Exception as exc:
-                self.log.exception("query %s failed", key_expr)
-                query.reply_err(f"{key_expr}: {type(exc).__name__}: {exc}")
+                self.limited.error(f"{key_expr} failed", "query %s failed", key_expr, exc_info=exc)
+                query.reply_err(printable(f"{key_expr}: {type(exc).__name__}: {exc}"))
             finally:
                 query.drop()
+                slots.release()
 
         def on_query(query: zenoh.Query) -> None:  # Zenoh thread
+            if not slots.acquire(blocking=False):
+                self.limited.warning(key_expr, "refused a query on %s: %d already being answered",
+                                     key_expr, MAX_QUERIES)
+                query.reply_err(f"{key_expr}: busy ({MAX_QUERIES} queries being answered); ask again later")
+                query.drop()
+                return
             with contextlib.suppress(RuntimeError):
                 loop.call_soon_threadsafe(self._spawn, answer(query))
 
@@ -439,20 +439,39 @@ class Node:
 
 
 class _BusLogHandler(logging.Handler):
-    """Copies a service's log records to the bus key ``log``."""
+    """Copies a service's log records to the bus key ``log``.
+
+    At most `BUS_LOG_RATE` lines a second (`BUS_LOG_BURST` at once) go to the bus, so a service
+    in trouble cannot flood it; its own output (stderr) keeps every line. The next line copied
+    says how many were left out."""
 
     LEVELS: ClassVar[dict[int, str]] = {10: "debug", 20: "info", 30: "warning", 40: "error", 50: "critical"}
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: Node, clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__(logging.INFO)
         self._service = node.service
         self._pub = node.session.declare_publisher(node.key(keys.LOG), encoding=MSGPACK)
         node._closables.append(self._pub)
+        self._clock = clock
+        self._tokens, self._refilled = float(BUS_LOG_BURST), clock()
+        self.left_out = 0
+        """Lines not copied since the last one that was."""
 
-    def emit(self, record: logging.LogRecord) -> None:
+    def emit(self, record: logging.LogRecord) -> None:  # under the handler's lock
         try:
+            now = self._clock()
+            self._tokens = min(BUS_LOG_BURST, self._tokens + (now - self._refilled) * BUS_LOG_RATE)
+            self._refilled = now
+            if self._tokens < 1.0:
+                self.left_out += 1
+                return
+            self._tokens -= 1.0
+            text = printable(record.getMessage(), 1000)
+            if self.left_out:
+                text += f" [{self.left_out} lines before this one not copied to the bus]"
+                self.left_out = 0
             level = self.LEVELS.get(record.levelno - record.levelno % 10, "info")
-            msg = Log(stamp=time.time_ns(), level=level, service=self._service, text=record.getMessage())
+            msg = Log(stamp=time.time_ns(), level=level, service=self._service, text=text)
             self._pub.put(codec.encode(msg))
         except Exception:  # a log line must never take a service down
             pass

@@ -65,6 +65,7 @@ async def test_bad_payloads_are_dropped_with_one_line_naming_key_and_field(
     ]
     caplog.set_level(logging.WARNING, logger="icefloe.victim")
     async with robot.node("sender") as sender, robot.node("victim") as victim, robot.node("reader") as reader:
+        victim.limited.burst = len(bad)  # here every line counts (a flood: the next test)
         bus_log = reader.subscribe(keys.LOG, latest=False)
         sub = victim.subscribe(keys.TWIST)
         await settle()
@@ -81,6 +82,84 @@ async def test_bad_payloads_are_dropped_with_one_line_naming_key_and_field(
         on_bus = [await next_of(bus_log) for _ in bad]
         assert all(entry.service == "victim" and entry.level == "warning" for entry in on_bus)
         assert [e.text for e in on_bus] == lines
+
+
+async def test_a_flood_of_bad_payloads_is_a_few_lines_and_a_count(
+    robot: Robot, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.WARNING, logger="icefloe.victim")
+    async with robot.node("sender") as sender, robot.node("victim") as victim, robot.node("reader") as reader:
+        bus_log = reader.subscribe(keys.LOG, latest=False, maxsize=10_000)
+        sub = victim.subscribe(keys.TWIST, maxsize=10_000)
+        await settle()
+        key = keys.key(robot.name, keys.TWIST)
+        for i in range(1000):
+            sender.session.put(key, b'{"v": "fast%d"}' % i, encoding=codec.JSON)
+        sender.session.put(key, b'{"v": 0.25, "w": 0}', encoding=codec.JSON)
+        assert await next_of(sub, 30.0) == m.Twist(v=0.25, w=0.0)
+        lines = [r.getMessage() for r in caplog.records if r.name == "icefloe.victim"]
+        assert len(lines) == victim.limited.burst == 3
+        await wait_for(lambda: sub.rejected == 1000, timeout=30)
+        await wait_for(lambda: len(caplog.records) > 3, timeout=5)  # when the period is over
+        count = caplog.records[3].getMessage()
+        assert count.startswith(f"{key}: 997 more like it not shown (in 1.")
+        on_bus = [(await next_of(bus_log)).text for _ in range(4)]
+        assert on_bus == [*lines, count]
+        await asyncio.sleep(0.3)
+        assert bus_log.pending() == 0
+
+
+async def test_the_bus_copy_of_a_log_is_limited(robot: Robot) -> None:
+    from icefloe.runtime import BUS_LOG_BURST, BUS_LOG_RATE
+
+    async with robot.node("chatty") as chatty, robot.node("reader") as reader:
+        bus_log = reader.subscribe(keys.LOG, latest=False, maxsize=10_000)
+        await settle()
+        for i in range(5000):  # a service logging without a limit (say, a bug in a loop)
+            chatty.log.warning("line %d", i)
+        await asyncio.sleep(1.0)
+        got = [(await next_of(bus_log)).text for _ in range(bus_log.pending())]
+        assert BUS_LOG_BURST <= len(got) <= BUS_LOG_BURST + 2 * BUS_LOG_RATE, len(got)
+        assert got[:3] == ["line 0", "line 1", "line 2"]
+        await asyncio.sleep(0.2)
+        chatty.log.warning("after")
+        last = (await next_of(bus_log)).text
+        assert last.startswith("after [") and last.endswith("lines before this one not copied to the bus]")
+
+
+async def test_a_flood_of_queries_is_answered_busy_beyond_the_limit(robot: Robot) -> None:
+    from icefloe.runtime import MAX_QUERIES
+
+    release = asyncio.Event()
+    running = 0
+    most = 0
+
+    async def slow(_request: m.Stop) -> m.RobotInfo:
+        nonlocal running, most
+        running += 1
+        most = max(most, running)
+        await release.wait()
+        running -= 1
+        return m.RobotInfo(name="x", board="penguinpi", backend="sim", wheel_diameter=0.065, track=0.156,
+                           ticks_per_rev=384, max_wheel_speed=0.5)
+
+    async with robot.node("server") as server, robot.node("client") as client:
+        server.queryable(keys.INFO, slow)
+        await settle()
+        answers: list[str] = []
+
+        def on_reply(reply) -> None:
+            answers.append("ok" if reply.ok is not None else reply.err.payload.to_string())
+
+        for _ in range(200):
+            client.session.get(client.key(keys.INFO), on_reply, timeout=20.0)
+        await wait_for(lambda: len(answers) >= 200 - MAX_QUERIES, timeout=20)
+        assert most == MAX_QUERIES
+        release.set()
+        await wait_for(lambda: len(answers) == 200, timeout=20)
+        assert answers.count("ok") == MAX_QUERIES
+        assert all("busy" in a for a in answers if a != "ok")
+        assert (await client.query(keys.INFO)).name == "x"  # and the next one is served
 
 
 async def test_queryable_answers_and_rejects_bad_requests(robot: Robot) -> None:
