@@ -68,7 +68,6 @@ def capture(config: RobotConfig, node: Node, slot: LatestFrame, stop: threading.
     """The capture thread: open the source, read frames into ``slot``, reopen after failures."""
     cam = config.camera
     source: Source | None = None
-    bad = 0
     while not stop.is_set():
         try:
             if source is None:
@@ -77,11 +76,8 @@ def capture(config: RobotConfig, node: Node, slot: LatestFrame, stop: threading.
                 node.log.info("camera %r open", cam.source)
             stamp, image = source.read()
             slot.put((stamp, check_frame(image, cam.width, cam.height)))
-            bad = 0
         except BadFrame as exc:
-            bad += 1
-            if bad <= 3 or bad % 100 == 0:
-                node.log.warning("camera %r: bad frame skipped (%s)", cam.source, exc)
+            node.limited.warning("bad frame", "camera %r: bad frame skipped (%s)", cam.source, exc)
         except Exception as exc:  # a camera that fails must not take the service with it
             node.log.warning("camera %r failed: %s; retrying in %.0f s", cam.source, exc, RETRY_S)
             if source is not None:

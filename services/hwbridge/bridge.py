@@ -20,10 +20,10 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable
 
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload
+from icefloe.logs import LimitedLog
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
@@ -43,24 +43,6 @@ HALTED_SPEED = 0.005
 HALT_TIMEOUT_S = 3.0
 
 
-class RateLimitedLog:
-    """At most one line per ``key`` per second; the lines in between are counted."""
-
-    def __init__(self, log: logging.Logger, clock: Callable[[], float] = time.monotonic) -> None:
-        self._log, self._clock = log, clock
-        self._last: dict[str, float] = {}
-        self._held: dict[str, int] = {}
-
-    def warning(self, key: str, text: str) -> None:
-        now = self._clock()
-        if now - self._last.get(key, -1e9) < 1.0:
-            self._held[key] = self._held.get(key, 0) + 1
-            return
-        held = self._held.pop(key, 0)
-        self._log.warning("%s%s", text, f" (and {held} more like it)" if held else "")
-        self._last[key] = now
-
-
 class Bridge:
     """Commands in, state out, for one robot; ``shared`` is the block the cycle attaches to."""
 
@@ -68,7 +50,8 @@ class Bridge:
         self.config = config
         self.shared = shared
         self.log = log
-        self.limited = RateLimitedLog(log)
+        self.limited = LimitedLog(log)
+        """Lines about bad or clamped input, a few per second per kind."""
         self.max_speed = config.hwbridge.max_wheel_speed
         self.left = self.right = 0.0
         self.fresh_ns = 0
@@ -101,8 +84,8 @@ class Bridge:
         """
         left, right, clamped = limit_wheels(left, right, self.max_speed)
         if clamped:
-            self.limited.warning(f"clamp:{source}", f"{source}: clamped to {self.max_speed} m/s "
-                                 f"per wheel (left {left:.3f}, right {right:.3f})")
+            self.limited.warning(f"{source} clamped", "%s: clamped to %s m/s per wheel (left %.3f, right %.3f)",
+                                 source, self.max_speed, left, right)
         if motion_since is None:
             self.cut_motion(f"another command on {source}")
         with self._lock:
@@ -186,36 +169,37 @@ class Bridge:
                     and abs(state["speed_right"]) < HALTED_SPEED):
                 return self.wheels_message(state)
             await asyncio.sleep(0.01)
-        self.log.warning("cmd/halt: wheels not measured at rest within %.0f s", HALT_TIMEOUT_S)
+        self.limited.warning("cmd/halt", "cmd/halt: wheels not measured at rest within %.0f s", HALT_TIMEOUT_S)
         return self.wheels_message(self.shared.read_state())
 
     # ------------------------------------------------------------------ board I/O
 
     def _push(self, source: str, kind: int, a: int = 0, b: int = 0, data: bytes = b"") -> None:
         if not self.shared.push_io(kind, a, b, data):
-            self.limited.warning(f"full:{source}", f"{source}: board command queue full, dropped")
+            self.limited.warning(f"{source} full", "%s: board command queue full, dropped", source)
 
     def led(self, msg: m.Led) -> None:
         if not 1 <= msg.led <= 4:
-            self.log.warning("io/leds: led must be 1..4, got %d; ignored", msg.led)
+            self.limited.warning("io/leds", "io/leds: led must be 1..4, got %d; ignored", msg.led)
             return
         ms = round(msg.pulse * 1000)
         if ms > 255:
-            self.log.warning("io/leds: pulse %.3f s is longer than the board's 0.255 s; clamped",
-                             msg.pulse)
+            self.limited.warning("io/leds pulse", "io/leds: pulse %.3f s is longer than the board's "
+                                 "0.255 s; clamped", msg.pulse)
             ms = 255
         # b: ms to pulse (> 0), 0 = on, -1 = off
         self._push("io/leds", IO_LED, msg.led, ms if msg.pulse > 0 else (0 if msg.on else -1))
 
     def ledarray(self, msg: m.LedArray) -> None:
         if not 0 <= msg.mask <= 0xFFFF:
-            self.log.warning("io/ledarray: mask must be 0..65535, got %d; ignored", msg.mask)
+            self.limited.warning("io/ledarray", "io/ledarray: mask must be 0..65535, got %d; ignored",
+                                 msg.mask)
             return
         self._push("io/ledarray", IO_LEDARRAY, msg.mask)
 
     def screen(self, msg: m.OledScreen) -> None:
         if not 0 <= msg.index <= 255:
-            self.log.warning("io/screen: index must be 0..255, got %d; ignored", msg.index)
+            self.limited.warning("io/screen", "io/screen: index must be 0..255, got %d; ignored", msg.index)
             return
         self._push("io/screen", IO_SCREEN, msg.index)
 

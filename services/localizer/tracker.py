@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from collections import deque
-from collections.abc import Callable
 
 from icefloe.config import RobotConfig
 from icefloe.errors import ConfigError
+from icefloe.logs import LimitedLog
 from icefloe.schemas import messages as m
 from icefloe.worldmap import load_world
 
@@ -36,24 +35,6 @@ def make_ekf(config: RobotConfig) -> Ekf:
     return Ekf({mk.id: (mk.x, mk.y) for mk in world.markers}, noise, gate_chi2=c.gate_chi2,
                mean=(c.initial_x, c.initial_y, c.initial_theta),
                sigma=(c.initial_sigma_xy, c.initial_sigma_xy, c.initial_sigma_theta))
-
-
-class Throttled:
-    """One log line per second at most for a kind of event, with how many happened meanwhile."""
-
-    def __init__(self, log: logging.Logger, clock: Callable[[], float] = time.monotonic) -> None:
-        self._log, self._clock = log, clock
-        self._last = -1e9
-        self._held = 0
-
-    def warning(self, text: str) -> None:
-        now = self._clock()
-        if now - self._last < 1.0:
-            self._held += 1
-            return
-        more = f" (and {self._held} more since the last report)" if self._held else ""
-        self._log.warning("%s%s", text, more)
-        self._last, self._held = now, 0
 
 
 HISTORY_NS = 1_000_000_000
@@ -81,6 +62,8 @@ class Localizer:
     def __init__(self, config: RobotConfig, log: logging.Logger) -> None:
         self.ekf = make_ekf(config)
         self.log = log
+        self._warn = LimitedLog(log, burst=1)
+        """One line per second per kind of event (and how many more happened)."""
         self.initialised = config.localizer.init == "config"
         self._sigma0 = (config.localizer.initial_sigma_xy,) * 2 + (config.localizer.initial_sigma_theta,)
         self._max_speed = config.odometry.max_wheel_speed
@@ -95,10 +78,6 @@ class Localizer:
         self._relocalize_after = config.localizer.relocalize_after
         self._rejected_in_a_row = 0
         self.skipped_odometry = 0
-        self._warn_odom = Throttled(log)
-        self._warn_outlier = Throttled(log)
-        self._warn_unknown = Throttled(log)
-        self._warn_stale = Throttled(log)
 
     def on_odometry(self, pose: m.Pose) -> None:
         prev, self._last_odom = self._last_odom, pose
@@ -111,7 +90,8 @@ class Localizer:
         reach = self._max_speed * max(dt, 0.0) + self._margin
         if dt < 0 or math.hypot(dx, dy) > reach or abs(dth) * self._track / 2 > reach:
             self.skipped_odometry += 1
-            self._warn_odom.warning(
+            self._warn.warning(
+                "odom/pose jump",
                 f"odom/pose jumped by ({dx:.3f} m, {dy:.3f} m, {dth:.3f} rad) in {dt:.3f} s "
                 "(odometry reset or restarted?): not used as motion")
             self._history.clear()  # the odometry frame changed: older poses are in another frame
@@ -150,7 +130,8 @@ class Localizer:
             then = self._odometry_at(frame.stamp)
             if then is None:
                 self.stale_frames += 1
-                self._warn_stale.warning(
+                self._warn.warning(
+                    "camera/landmarks stale",
                     f"camera/landmarks frame {(self._history[-1][0] - frame.stamp) * 1e-9:.3f} s older than "
                     f"the odometry: stale, not used; {self.stale_frames} so far")
                 return self.initialised
@@ -166,8 +147,9 @@ class Localizer:
             if lost:
                 self.relocalized += 1
                 self._rejected_in_a_row = 0
-                self.log.warning("lost (%d sightings in a row failed the gate): restarted from %d landmarks "
-                                 "at x=%.3f y=%.3f theta=%.3f", self._relocalize_after, len(known), *pose)
+                self._warn.warning("relocalized", "lost (%d sightings in a row failed the gate): restarted "
+                                   "from %d landmarks at x=%.3f y=%.3f theta=%.3f",
+                                   self._relocalize_after, len(known), *pose)
             else:
                 self.log.info("initial pose from %d landmarks: x=%.3f y=%.3f theta=%.3f", len(known), *pose)
             self.initialised = True
@@ -177,12 +159,14 @@ class Localizer:
                 self._rejected_in_a_row = 0
             elif result.outcome is Outcome.OUTLIER:
                 self._rejected_in_a_row += 1
-                self._warn_outlier.warning(
+                self._warn.warning(
+                    "landmark outlier",
                     f"landmark {lid} at range {rng:.3f} m, bearing {bearing:.3f} rad "
                     f"{result.outcome.value} (d2={result.d2:.1f} > {self.ekf.gate_chi2}); "
                     f"{self.ekf.outliers} outliers so far")
             else:
-                self._warn_unknown.warning(
+                self._warn.warning(
+                    "landmark unknown",
                     f"landmark {lid}: {result.outcome.value}; {self.ekf.unknown} unknown sightings so far")
         if not self._history:
             self.stamp = max(self.stamp, frame.stamp)

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from typing import ClassVar
 
 from icefloe.config import RobotConfig
+from icefloe.logs import LimitedLog
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -61,35 +62,22 @@ class EventLog:
     """Logs each unusual sample with what was seen: up to `burst` lines per kind per second.
 
     A storm (say, a board that keeps resetting) becomes a few lines plus a
-    count instead of a thousand lines a second.
+    count instead of a thousand lines a second (`LimitedLog`).
     """
 
     INTERESTING: ClassVar[dict[Event, int]] = {Event.GAP: logging.INFO, Event.BACKWARDS: logging.WARNING,
                                                Event.JUMP: logging.WARNING, Event.BAD: logging.WARNING}
 
     def __init__(self, log: logging.Logger, clock: Callable[[], float] = time.monotonic, burst: int = 5) -> None:
-        self._log, self._clock, self._burst = log, clock, burst
-        self._window: dict[Event, tuple[float, int]] = {}  # kind -> (window start s, lines in it)
-        self._held: dict[Event, int] = {}
+        self._limited = LimitedLog(log, burst=burst, clock=clock)
         self.counts: dict[Event, int] = {e: 0 for e in Event}
         """Samples seen per kind, since start."""
 
     def note(self, step: Step) -> None:
         self.counts[step.event] += 1
         level = self.INTERESTING.get(step.event)
-        if level is None:
-            return
-        now = self._clock()
-        start, lines = self._window.get(step.event, (-1e9, 0))
-        if now - start >= 1.0:
-            start, lines = now, 0
-        if lines >= self._burst:
-            self._held[step.event] = self._held.get(step.event, 0) + 1
-            return
-        held = self._held.pop(step.event, 0)
-        more = f" (and {held} more like it not shown)" if held else ""
-        self._log.log(level, "hw/wheels: %s%s", step.describe(), more)
-        self._window[step.event] = (start, lines + 1)
+        if level is not None:
+            self._limited.write(level, f"hw/wheels {step.event.name.lower()}", "hw/wheels: %s", step.describe())
 
 
 async def main(config: RobotConfig) -> None:

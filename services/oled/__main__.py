@@ -66,23 +66,23 @@ class Oled:
     def text(self, msg: m.OledText) -> None:
         """``oled/text``: append to the user screen and show it."""
         if len(msg.text) > MAX_TEXT:
-            self.node.log.warning("oled/text: %d characters, more than %d; dropped",
-                                  len(msg.text), MAX_TEXT)
+            self.node.limited.warning("oled/text", "oled/text: %d characters, more than %d; dropped",
+                                      len(msg.text), MAX_TEXT)
             return
         terminal = self.status.terminal
         before = terminal.replaced
         terminal.write(msg.text)
         if terminal.replaced > before:
-            self.node.log.info("oled/text: %d characters without a glyph shown as boxes",
-                               terminal.replaced - before)
+            self.node.limited.info("oled/text glyphs", "oled/text: %d characters without a glyph shown as boxes",
+                                   terminal.replaced - before)
         self.sink.user_text(msg.text)
         self.index = USER
 
     def screen(self, msg: m.OledScreen) -> None:
         """``oled/screen``: select a screen by number."""
         if not 0 <= msg.index < len(SCREENS):
-            self.node.log.warning("oled/screen: index %d is not a screen (0..%d); ignored",
-                                  msg.index, len(SCREENS) - 1)
+            self.node.limited.warning("oled/screen", "oled/screen: index %d is not a screen (0..%d); ignored",
+                                      msg.index, len(SCREENS) - 1)
             return
         self.index = msg.index
 
@@ -112,7 +112,7 @@ class Oled:
             try:
                 await self.node.query(keys.ODOM_RESET, m.PoseReset(), timeout=1.0)
             except (NotReachable, BadPayload) as exc:
-                self.node.log.warning("button 2 on %s: %s", name, exc)
+                self.node.limited.warning("button 2", "button 2 on %s: %s", name, exc)
 
     # ---------------------------------------------------------------- loops
 

@@ -54,7 +54,7 @@ async def _readings(node: Node, monitor: BatteryMonitor,
         try:
             state = monitor.update(reading.voltage, reading.current, time.monotonic())
         except BadReading as exc:
-            node.log.warning("hw/battery: %s; reading ignored", exc)
+            node.limited.warning("hw/battery", "hw/battery: %s; reading ignored", exc)
             continue
         assert monitor.voltage is not None
         battery.put(m.Battery(stamp=reading.stamp, voltage=round(monitor.voltage, 4),

@@ -68,8 +68,8 @@ class SimLines:
             if sample.line not in self._inputs:
                 continue  # another line (e.g. our own acknowledge line echoed back)
             if sample.level not in (0, 1):
-                self._node.log.warning("sim/gpio: line %d: level must be 0 or 1, got %d; ignored",
-                                       sample.line, sample.level)
+                self._node.limited.warning("sim/gpio", "sim/gpio: line %d: level must be 0 or 1, got %d; "
+                                           "ignored", sample.line, sample.level)
                 continue
             yield sample.line, sample.level, sample.stamp / 1e9
 

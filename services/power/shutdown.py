@@ -42,7 +42,8 @@ class Shutdown:
     def start(self, reason: str) -> m.ShutdownNotice:
         """Begin shutting down for ``reason`` (idempotent); returns the notice that was published."""
         if self.notice is not None:
-            self._node.log.info("already shutting down (%s); ignoring %r", self.notice.reason, reason)
+            self._node.limited.info("shutting down", "already shutting down (%s); ignoring %r",
+                                    self.notice.reason, reason)
             return self.notice
         self.notice = m.ShutdownNotice(stamp=time.time_ns(), reason=reason)
         self._notice_pub.put(self.notice)

@@ -126,8 +126,8 @@ async def _ack_line(node: Node, sim: Simulator) -> None:
         if sample.line != ACK:
             continue  # our own lines, echoed back
         if sample.level not in (0, 1):
-            node.log.warning("sim/gpio: GPIO%d level must be 0 or 1, got %d; ignored",
-                             sample.line, sample.level)
+            node.limited.warning("sim/gpio", "sim/gpio: GPIO%d level must be 0 or 1, got %d; ignored",
+                                 sample.line, sample.level)
             continue
         sim.gpio.set_ack(sample.level)
 

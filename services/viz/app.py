@@ -27,7 +27,7 @@ import rerun as rr
 
 from icefloe.config import RobotConfig
 from icefloe.errors import ConfigError
-from icefloe.runtime import LimitedLog, Node
+from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas.keys import Topic
 from icefloe.worldmap import load_world
@@ -104,7 +104,6 @@ class Viewer:
         self.loggers: dict[str, RobotLogger] = {}
         self._tasks = tasks
         self._markers = world_markers(node.config, node.log)
-        self._warn = LimitedLog(node.log)
 
     def add(self, robot: str) -> None:
         """Start showing ``robot`` (nothing happens if it is shown already)."""
@@ -130,7 +129,8 @@ class Viewer:
             try:
                 stream.handler(logger, msg)
             except Exception as exc:  # a message that decodes but cannot be drawn must not stop the viewer
-                self._warn.warning(f"{keys.key(logger.robot, stream.topic)}: dropped: {exc}")
+                key = keys.key(logger.robot, stream.topic)
+                self.node.limited.warning(key, "%s: dropped: %s", key, exc)
 
     async def discover(self) -> None:
         """Add every robot that holds a liveliness token, now and whenever one appears."""
