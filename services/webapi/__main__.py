@@ -17,7 +17,10 @@ from icefloe.client import AsyncRobot
 from icefloe.config import RobotConfig
 from icefloe.runtime import run
 
-from .routes import Api
+from .routes import Api, ServerLog
+
+KEEPALIVE_S = 15.0
+"""An idle HTTP connection is closed after this long, s."""
 
 
 async def main(config: RobotConfig) -> None:
@@ -34,7 +37,10 @@ async def serve(robot: AsyncRobot) -> None:
     """Serve HTTP until cancelled (SIGINT/SIGTERM)."""
     settings = robot.config.webapi
     api = Api(robot)
-    runner = web.AppRunner(api.app(), access_log=None)
+    # No access log; malformed requests become short rate-limited lines (ServerLog); an idle
+    # connection is closed after KEEPALIVE_S (aiohttp keeps one an hour), so idle clients cost little.
+    runner = web.AppRunner(api.app(), access_log=None, logger=ServerLog(robot.node.limited),
+                           keepalive_timeout=KEEPALIVE_S)
     await runner.setup()
     # A short shutdown timeout: video streams never end by themselves.
     site = web.TCPSite(runner, settings.host, settings.port, shutdown_timeout=1.0)

@@ -13,13 +13,16 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import sys
 from collections.abc import Awaitable, Callable
 from typing import Any
 
 from aiohttp import web
+from aiohttp.http_exceptions import HttpProcessingError
 
 from icefloe.client import AsyncRobot
 from icefloe.errors import NotReachable
+from icefloe.logs import LimitedLog
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -45,18 +48,53 @@ def error(status: int, message: str) -> web.Response:
                         content_type="application/json")
 
 
+LIMITED = web.AppKey("limited", LimitedLog)
+"""The app's log for refused requests (a few lines per second per route)."""
+
+
 @web.middleware
 async def errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     """Turn refusals into the old server's 400 JSON, and silent services into 503."""
-    log = logging.getLogger("icefloe.webapi")
     try:
         return await handler(request)
     except InvalidCommand as exc:
-        log.info("%s rejected: %s", request.rel_url, exc.message)
+        route = request.match_info.route.resource
+        request.app[LIMITED].info(route.canonical if route else "?", "%s rejected: %s", request.rel_url, exc.message)
         return error(400, exc.message)
     except NotReachable as exc:
-        log.warning("%s: %s", request.rel_url, exc)
+        request.app[LIMITED].warning("not reachable", "%s: %s", request.rel_url, exc)
         return error(503, f"robot not answering: {exc}")
+
+
+class ServerLog(logging.LoggerAdapter):
+    """aiohttp's server log for webapi (``AppRunner(logger=...)``).
+
+    aiohttp answers a request it cannot parse (a line longer than 8190 bytes, a bad method,
+    garbage, a bad header) with 400 and closes the connection; then it logs an ERROR with a
+    traceback, once per request. Here that becomes one short line, a few per second (`LimitedLog`).
+    Any other error (a bug) keeps its traceback, rate-limited too.
+    """
+
+    def __init__(self, limited: LimitedLog) -> None:
+        super().__init__(logging.getLogger("aiohttp.server"), {})
+        self.limited = limited
+
+    def _bad_request(self, args: tuple[object, ...], exc: object) -> bool:
+        if not isinstance(exc, HttpProcessingError):
+            return False
+        remote = f" from {args[0]}" if args else ""  # aiohttp: "Error handling request from %s", remote
+        self.limited.warning("bad HTTP request", "bad HTTP request%s, answered %d: %s: %s", remote,
+                             exc.code or 400, type(exc).__name__, exc.message)
+        return True
+
+    def exception(self, msg: object, *args: object, exc_info: Any = True, **kwargs: Any) -> None:
+        exc = exc_info if isinstance(exc_info, BaseException) else sys.exc_info()[1]
+        if not self._bad_request(args, exc):
+            self.limited.error("HTTP server error", str(msg), *args, exc_info=exc)
+
+    def debug(self, msg: object, *args: object, **kwargs: Any) -> None:
+        if not self._bad_request(args, kwargs.get("exc_info")):
+            super().debug(msg, *args, **kwargs)
 
 
 class Api:
@@ -260,6 +298,7 @@ class Api:
 
     def app(self) -> web.Application:
         app = web.Application(middlewares=[errors])
+        app[LIMITED] = self.node.limited
         routes = {
             "/robot/set/velocity": self.set_velocity,
             "/robot/stop": self.stop,
