@@ -1,4 +1,4 @@
-"""Log lines about bad input, a few per second per kind: `LimitedLog`.
+"""Log lines about bad input, a few per second: `LimitedLog`.
 
 Every boundary of icefloe (a subscription, a queryable, an HTTP route, the board
 link) can be flooded with bad input by a student's script gone wrong or on
@@ -7,13 +7,14 @@ flood must not become a flood of lines (on stderr, and copied to the bus key
 ``log``)::
 
     limited = LimitedLog(node.log)
-    limited.warning("cmd/twist", "dropped: icefloe/sim/cmd/twist: Expected `float`, got `str`")
+    limited.warning("cmd/twist", "dropped: %s", exc)
 
-At most ``burst`` lines of one *kind* are written per ``period``; the rest are
-counted, and one more line says how many were not shown, once the period is
-over. A kind is a short name chosen by the program (a key, a route), never text
-from the input. Lines are cut to `MAX_TEXT` characters and control characters
-are escaped, so input cannot forge or stretch log lines.
+In each ``period`` (1 s) at most ``burst`` lines of one *kind* are written, and
+at most ``limit`` lines in all; the others are counted, and one line at the end
+of the period says how many of each kind were not shown. A kind is a short name
+chosen by the program (a key, a route), never text from the input. Lines are
+cut to `MAX_TEXT` characters and their control characters escaped, so input
+can neither forge nor stretch log lines.
 """
 
 from __future__ import annotations
@@ -22,13 +23,13 @@ import asyncio
 import logging
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
 
 MAX_TEXT = 300
-"""Longest line written, characters (a payload's text can be quoted in an error message)."""
+"""Longest line written, characters (an error message can quote a payload's text)."""
 MAX_KINDS = 64
-"""Kinds tracked at once; more are counted under ``"other"``."""
+"""Kinds counted in one period; more are counted as ``"other"``."""
 
 
 def printable(text: str, limit: int = MAX_TEXT) -> str:
@@ -40,27 +41,24 @@ def printable(text: str, limit: int = MAX_TEXT) -> str:
     return "".join(c if c.isprintable() else f"\\x{ord(c):02x}" for c in text)
 
 
-@dataclass
-class _Window:
-    start: float
-    written: int = 0
-    held: int = 0
-    level: int = logging.WARNING
-
-
 class LimitedLog:
-    """At most ``burst`` lines per kind per ``period`` s; the others are counted and reported.
+    """At most ``burst`` lines per kind and ``limit`` in all per ``period`` s; the rest are counted
+    and reported in one line when the period is over.
 
-    Safe to call from any thread (zenoh-python calls back on its own). The report of the lines
-    held back comes at the end of the period (a timer on the event loop that built or first
-    used this object, if there is one), or else with the next line of the kind, or `flush`.
+    Safe to call from any thread (zenoh-python calls back on its own). The report comes from a
+    timer on the event loop that built or first used this object; without a loop, with the next
+    line, or from `flush`.
     """
 
-    def __init__(self, log: logging.Logger, *, burst: int = 3, period: float = 1.0,
+    def __init__(self, log: logging.Logger, *, burst: int = 3, limit: int = 6, period: float = 1.0,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.log, self.burst, self.period, self._clock = log, burst, period, clock
-        self._windows: dict[str, _Window] = {}
+        self.log, self.burst, self.limit, self.period, self._clock = log, burst, limit, period, clock
         self._lock = threading.Lock()
+        self._start: float | None = None
+        """When the period under way began (None: no line since the last one ended)."""
+        self._shown: Counter[str] = Counter()
+        self._held: Counter[str] = Counter()
+        self._held_level = logging.DEBUG
         try:
             self._loop: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
         except RuntimeError:
@@ -70,74 +68,71 @@ class LimitedLog:
         self.held = 0
         """Lines not written so far."""
 
-    def warning(self, kind: str, text: str, *args: object) -> bool:
-        return self.write(logging.WARNING, kind, text, *args)
+    def warning(self, kind: str, text: str, *args: object, exc_info: BaseException | None = None) -> bool:
+        return self.write(logging.WARNING, kind, text, *args, exc_info=exc_info)
 
-    def info(self, kind: str, text: str, *args: object) -> bool:
-        return self.write(logging.INFO, kind, text, *args)
+    def info(self, kind: str, text: str, *args: object, exc_info: BaseException | None = None) -> bool:
+        return self.write(logging.INFO, kind, text, *args, exc_info=exc_info)
 
     def error(self, kind: str, text: str, *args: object, exc_info: BaseException | None = None) -> bool:
         return self.write(logging.ERROR, kind, text, *args, exc_info=exc_info)
 
     def write(self, level: int, kind: str, text: str, *args: object,
               exc_info: BaseException | None = None) -> bool:
-        """Write ``text % args`` at ``level`` unless ``kind`` had its ``burst`` this period;
-        True if it was written. ``exc_info`` adds the traceback to the lines that are written."""
+        """Write ``text % args`` at ``level`` unless this period had its lines of ``kind`` (or in
+        all) already; True if it was written. ``exc_info``: a traceback for the lines written."""
         now = self._clock()
-        reports = []
-        report_in: float | None = None
         with self._lock:
-            window = self._windows.get(kind)
-            if window is not None and now - window.start >= self.period:
-                reports.append(self._close(kind))
-                window = None
-            if window is None:
-                if len(self._windows) >= MAX_KINDS:  # forget the kinds whose period is over
-                    reports += [self._close(k) for k, w in list(self._windows.items())
-                                if now - w.start >= self.period]
-                    if len(self._windows) >= MAX_KINDS:
-                        kind = "other"
-                window = self._windows.setdefault(kind, _Window(now))
-            show = window.written < self.burst
+            report = self._end_period(now) if self._start is not None and now - self._start >= self.period \
+                else None
+            if self._start is None:
+                self._start = now
+            if kind not in self._shown and kind not in self._held and \
+                    len(self._shown) + len(self._held) >= MAX_KINDS:
+                kind = "other"
+            show = self._shown[kind] < self.burst and self._shown.total() < self.limit
             if show:
-                window.written += 1
+                self._shown[kind] += 1
                 self.written += 1
             else:
-                window.held += 1
-                window.level = max(window.level, level)
+                self._held[kind] += 1
+                self._held_level = max(self._held_level, level)
                 self.held += 1
-                if window.held == 1:
-                    report_in = window.start + self.period - now
-        for report in reports:
-            if report:
-                self._report(*report)
+            first_held = not show and self._held.total() == 1
+            due = self._start + self.period - now
+        if report:
+            self._report(*report)
         if show:
             self.log.log(level, "%s", printable(text % args if args else text), exc_info=exc_info)
-        elif report_in is not None:
-            self._report_later(kind, report_in)
+        elif first_held:
+            self._report_later(due)
         return show
 
     def flush(self) -> None:
-        """Report the lines held back so far (e.g. before exiting)."""
+        """End the period now: report the lines held back so far (e.g. before exiting)."""
         with self._lock:
-            reports = [self._close(kind) for kind in list(self._windows)]
-        for report in reports:
-            if report:
-                self._report(*report)
+            report = self._end_period(self._clock())
+        if report:
+            self._report(*report)
 
-    def _close(self, kind: str) -> tuple[str, int, int, float] | None:
-        """End a kind's period (lock held); what to report, if lines were held back."""
-        window = self._windows.pop(kind)
-        if not window.held:
+    def _end_period(self, now: float) -> tuple[Counter[str], int, float] | None:
+        """Close the period under way (lock held); what to report, if lines were held back."""
+        seconds = 0.0 if self._start is None else now - self._start
+        held, level = self._held, self._held_level
+        self._start, self._shown, self._held, self._held_level = None, Counter(), Counter(), logging.DEBUG
+        if not held:
             return None
-        return kind, window.held, window.level, self._clock() - window.start
-
-    def _report(self, kind: str, held: int, level: int, seconds: float) -> None:
         self.written += 1
-        self.log.log(level, "%s: %d more like it not shown (in %.1f s)", printable(kind), held, seconds)
+        return held, level, seconds
 
-    def _report_later(self, kind: str, delay: float) -> None:
-        """Report ``kind``'s held lines when its period ends (on the event loop, if there is one)."""
+    def _report(self, held: Counter[str], level: int, seconds: float) -> None:
+        n = held.total()
+        kinds = ", ".join(f"{count} {kind}" for kind, count in held.most_common())
+        self.log.log(level, "%s", printable(f"{n} more line{'s' if n > 1 else ''} like these not shown in "
+                                            f"{seconds:.1f} s: {kinds}"))
+
+    def _report_later(self, delay: float) -> None:
+        """Report when the period ends (on the event loop, if there is one)."""
         try:
             running: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
         except RuntimeError:
@@ -146,14 +141,18 @@ class LimitedLog:
             self._loop = running
         loop = self._loop
         if loop is None or loop.is_closed():
-            return  # reported with the next line of this kind, or by flush()
+            return  # reported with the next line, or by flush()
 
         def due() -> None:
             with self._lock:
-                window = self._windows.get(kind)
-                report = self._close(kind) if window and self._clock() - window.start >= self.period else None
+                if self._start is None:
+                    return  # a line has ended the period (and reported) already
+                left = self._start + self.period - self._clock()
+                report = self._end_period(self._clock()) if left <= 0 else None
             if report:
                 self._report(*report)
+            elif left > 0:  # the loop's clock ran ahead of ours
+                loop.call_later(left + 0.01, due)
 
         try:
             if running is loop:

@@ -1,4 +1,4 @@
-"""`LimitedLog`: a few lines per second per kind, a count of the rest, short printable lines."""
+"""`LimitedLog`: a few lines per second per kind and in all, a count of the rest, short printable lines."""
 
 from __future__ import annotations
 
@@ -12,9 +12,15 @@ from icefloe.logs import MAX_KINDS, MAX_TEXT, LimitedLog, printable
 
 
 class Lines(logging.Handler):
-    def __init__(self) -> None:
+    """The records of one test's logger."""
+
+    def __init__(self, name: str) -> None:
         super().__init__()
         self.records: list[logging.LogRecord] = []
+        self.log = logging.getLogger(f"test.logs.{name}")
+        self.log.addHandler(self)
+        self.log.setLevel(logging.DEBUG)
+        self.log.propagate = False
 
     def emit(self, record: logging.LogRecord) -> None:
         self.records.append(record)
@@ -26,58 +32,63 @@ class Lines(logging.Handler):
 
 @pytest.fixture
 def lines(request: pytest.FixtureRequest) -> Lines:
-    handler = Lines()
-    log = logging.getLogger(f"test.logs.{request.node.name}")
-    log.addHandler(handler)
-    log.setLevel(logging.DEBUG)
-    log.propagate = False
-    handler.log = log  # type: ignore[attr-defined]
-    return handler
+    return Lines(request.node.name)
 
 
-def test_a_flood_becomes_a_few_lines_and_a_count_per_kind(lines: Lines) -> None:
+def test_a_flood_is_a_few_lines_per_kind_then_one_count(lines: Lines) -> None:
     now = [100.0]
-    limited = LimitedLog(lines.log, burst=3, clock=lambda: now[0])  # type: ignore[attr-defined]
+    limited = LimitedLog(lines.log, burst=3, limit=6, clock=lambda: now[0])
     shown = [limited.warning("cmd/twist", "dropped: bad %d", i) for i in range(10_000)]
     assert shown[:3] == [True] * 3 and not any(shown[3:])
-    assert limited.warning("cmd/stop", "dropped: stop") is True  # another kind has its own budget
+    assert limited.warning("cmd/stop", "dropped: stop") is True  # another kind has its own lines
     assert lines.texts == ["dropped: bad 0", "dropped: bad 1", "dropped: bad 2", "dropped: stop"]
-    now[0] += 1.5  # the period is over: the count comes before the next line of the kind
+    now[0] += 1.5  # the period is over: the count comes before the next line
     limited.warning("cmd/twist", "dropped: again")
-    assert lines.texts[-2:] == ["cmd/twist: 9997 more like it not shown (in 1.5 s)", "dropped: again"]
+    assert lines.texts[-2:] == ["9997 more lines like these not shown in 1.5 s: 9997 cmd/twist", "dropped: again"]
     assert limited.held == 9997 and limited.written == 6
+
+
+def test_a_flood_on_many_kinds_is_limited_in_all(lines: Lines) -> None:
+    limited = LimitedLog(lines.log, burst=3, limit=6, clock=lambda: 0.0)
+    for i in range(1000):
+        limited.warning(f"key {i % 10}", "bad %d", i)
+    assert len(lines.records) == 6
+    limited.flush()
+    assert lines.texts[-1].startswith("994 more lines like these not shown in 0.0 s: 100 key 6, 100 key 7")
 
 
 def test_the_count_comes_when_the_period_ends_without_more_input(lines: Lines) -> None:
     async def flood() -> None:
-        limited = LimitedLog(lines.log, burst=2, period=0.2)  # type: ignore[attr-defined]
+        limited = LimitedLog(lines.log, burst=2, period=0.2)
         for i in range(50):
             limited.warning("io/leds", "bad %d", i)
-        assert len(lines.records) == 2
+        limited.error("io/text", "worse")
+        assert len(lines.records) == 3
         await asyncio.sleep(0.5)  # a timer on this loop reports the 48
-        assert lines.texts[-1].startswith("io/leds: 48 more like it not shown")
-        assert lines.records[-1].levelno == logging.WARNING
+        assert lines.texts[-1].startswith("48 more lines like these not shown in 0.2 s: 48 io/leds")
+        assert lines.records[-1].levelno == logging.WARNING  # the level of what was held back
 
     asyncio.run(flood())
 
 
 def test_other_threads_are_counted_and_reported_too(lines: Lines) -> None:
     async def flood() -> None:
-        limited = LimitedLog(lines.log, burst=5, period=0.2)  # type: ignore[attr-defined]
+        limited = LimitedLog(lines.log, burst=5, period=0.3)
         threads = [threading.Thread(target=lambda: [limited.warning("k", "x") for _ in range(1000)])
                    for _ in range(4)]
         for t in threads:
             t.start()
         for t in threads:
             t.join()
-        await asyncio.sleep(0.5)
-        assert lines.texts == ["x"] * 5 + ["k: 3995 more like it not shown" + lines.texts[-1].split("shown")[1]]
+        await asyncio.sleep(0.6)
+        assert lines.texts[:5] == ["x"] * 5 and len(lines.texts) == 6
+        assert lines.texts[5].startswith("3995 more lines like these not shown in 0.3 s: 3995 k")
 
     asyncio.run(flood())
 
 
 def test_lines_are_short_and_cannot_forge_other_lines(lines: Lines) -> None:
-    limited = LimitedLog(lines.log)  # type: ignore[attr-defined]
+    limited = LimitedLog(lines.log)
     limited.warning("cmd/twist", "unknown field `%s`", "x" * 100_000)
     limited.warning("cmd/wheels", "unknown field `%s`", "a\n2026-01-01 ERROR icefloe.hwbridge: fake\x1b[31m")
     first, second = lines.texts
@@ -86,21 +97,19 @@ def test_lines_are_short_and_cannot_forge_other_lines(lines: Lines) -> None:
     assert printable("ok") == "ok"
 
 
-def test_the_kinds_kept_are_bounded(lines: Lines) -> None:
-    now = [0.0]
-    limited = LimitedLog(lines.log, burst=1, clock=lambda: now[0])  # type: ignore[attr-defined]
+def test_the_kinds_counted_are_bounded(lines: Lines) -> None:
+    limited = LimitedLog(lines.log, burst=1, limit=10 * MAX_KINDS, clock=lambda: 0.0)
     for i in range(10 * MAX_KINDS):
         limited.warning(f"kind {i}", "line %d", i)
-    assert len(limited._windows) == MAX_KINDS + 1
-    assert len(lines.records) == MAX_KINDS + 1  # the rest share the kind "other"
-    now[0] = 2.0
-    limited.warning("kind 0", "later")  # periods over: old kinds are forgotten, with their counts
-    assert lines.texts[-2:] == [f"other: {9 * MAX_KINDS - 1} more like it not shown (in 2.0 s)", "later"]
-    assert list(limited._windows) == ["kind 0"]
+    assert len(limited._shown) == MAX_KINDS + 1  # the rest are "other"
+    assert len(lines.records) == MAX_KINDS + 1
+    limited.flush()
+    assert lines.texts[-1] == f"{9 * MAX_KINDS - 1} more lines like these not shown in 0.0 s: " \
+                              f"{9 * MAX_KINDS - 1} other"
 
 
 def test_errors_keep_their_traceback_on_the_lines_shown(lines: Lines) -> None:
-    limited = LimitedLog(lines.log, burst=1, clock=lambda: 0.0)  # type: ignore[attr-defined]
+    limited = LimitedLog(lines.log, burst=1, clock=lambda: 0.0)
     try:
         raise ValueError("boom")
     except ValueError as exc:
@@ -108,5 +117,5 @@ def test_errors_keep_their_traceback_on_the_lines_shown(lines: Lines) -> None:
         limited.error("query failed", "query %s failed", "odom/reset", exc_info=exc)
     assert len(lines.records) == 1 and lines.records[0].exc_info is not None
     limited.flush()
-    assert lines.texts[-1].startswith("query failed: 1 more like it not shown")
+    assert lines.texts[-1] == "1 more line like these not shown in 0.0 s: 1 query failed"
     assert lines.records[-1].levelno == logging.ERROR

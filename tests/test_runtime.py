@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import time
 
 import msgspec
 import pytest
@@ -102,7 +103,7 @@ async def test_a_flood_of_bad_payloads_is_a_few_lines_and_a_count(
         await wait_for(lambda: sub.rejected == 1000, timeout=30)
         await wait_for(lambda: len(caplog.records) > 3, timeout=5)  # when the period is over
         count = caplog.records[3].getMessage()
-        assert count.startswith(f"{key}: 997 more like it not shown (in 1.")
+        assert count.startswith("997 more lines like these not shown in 1.") and count.endswith(f" s: 997 {key}")
         on_bus = [(await next_of(bus_log)).text for _ in range(4)]
         assert on_bus == [*lines, count]
         await asyncio.sleep(0.3)
@@ -115,11 +116,13 @@ async def test_the_bus_copy_of_a_log_is_limited(robot: Robot) -> None:
     async with robot.node("chatty") as chatty, robot.node("reader") as reader:
         bus_log = reader.subscribe(keys.LOG, latest=False, maxsize=10_000)
         await settle()
+        start = time.monotonic()
         for i in range(5000):  # a service logging without a limit (say, a bug in a loop)
             chatty.log.warning("line %d", i)
+        took = time.monotonic() - start
         await asyncio.sleep(1.0)
         got = [(await next_of(bus_log)).text for _ in range(bus_log.pending())]
-        assert BUS_LOG_BURST <= len(got) <= BUS_LOG_BURST + 2 * BUS_LOG_RATE, len(got)
+        assert BUS_LOG_BURST <= len(got) <= BUS_LOG_BURST + BUS_LOG_RATE * (took + 0.1), (len(got), took)
         assert got[:3] == ["line 0", "line 1", "line 2"]
         await asyncio.sleep(0.2)
         chatty.log.warning("after")

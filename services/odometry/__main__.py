@@ -69,7 +69,7 @@ class EventLog:
                                                Event.JUMP: logging.WARNING, Event.BAD: logging.WARNING}
 
     def __init__(self, log: logging.Logger, clock: Callable[[], float] = time.monotonic, burst: int = 5) -> None:
-        self._limited = LimitedLog(log, burst=burst, clock=clock)
+        self._limited = LimitedLog(log, burst=burst, limit=2 * burst, clock=clock)
         self.counts: dict[Event, int] = {e: 0 for e in Event}
         """Samples seen per kind, since start."""
 
