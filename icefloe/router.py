@@ -60,6 +60,11 @@ def acl_rules(owners: Iterable[tuple[str, str]]) -> str:
 def router_config(config: RobotConfig, owners: list[tuple[str, str, str]] | None = None) -> zenoh.Config:
     """Zenoh config of the router; ``owners`` = (robot, user, password) for access control."""
     zc = zenoh_config(config, mode="router", listen=config.zenoh.listen)
+    # No shared-memory transport: with it, every payload over 3 KiB that passes the router goes
+    # through 16 MiB segments mapped into the sender, the router and each receiver (+20 to +40 MB
+    # of RSS in each, docs/hostile-input.md), and a local process could make everyone map its own.
+    # Our large messages (camera JPEGs, 2 Hz) cost a copy instead.
+    zc.insert_json5("transport/shared_memory/enabled", "false")
     if owners is None and config.zenoh.access_control:
         if not config.zenoh.user:
             where = config.zenoh.credentials or "(zenoh.credentials is not set)"
