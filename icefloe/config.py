@@ -12,13 +12,15 @@ pseudo-terminals) and ``{name}`` (the robot's name).
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
+from msgspec import Meta
 
 from . import paths
 from .errors import ConfigError
@@ -28,8 +30,27 @@ DEFAULT_ROBOT = "sim"
 ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
 
 
+# Value ranges, checked when a file is read: a bad value is a ConfigError naming its key
+# ("robot.toml: hwbridge.deadman_s: Expected `float` > 0.0") and nothing starts.
+Positive = Annotated[float, Meta(gt=0)]
+NonNegative = Annotated[float, Meta(ge=0)]
+Hz = Annotated[float, Meta(gt=0, le=10_000)]
+Seconds = Annotated[float, Meta(gt=0, le=86_400)]
+Count = Annotated[int, Meta(ge=1)]
+Line = Annotated[int, Meta(ge=0, le=1023)]
+"""A GPIO line number."""
+Port = Annotated[int, Meta(ge=1, le=65_535)]
+
+
 class Section(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """Base of every config table: unknown keys are errors (a typo must not pass silently)."""
+    """Base of every config table: unknown keys are errors (a typo must not pass silently), and so
+    are infinite numbers (TOML has ``inf`` and ``nan``)."""
+
+    def __post_init__(self) -> None:
+        for name in self.__struct_fields__:
+            value = getattr(self, name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"`{name}` must be a finite number, got {value}")
 
 
 class Board(Section):
@@ -40,75 +61,75 @@ class Board(Section):
     """"hardware": the real board; "sim": the simulator's model of it (same wire protocol)."""
     serial_port: str = "/dev/serial0"
     """PenguinPi: the serial device (the simulator's pseudo-terminal in sim)."""
-    baud: int = 115200
+    baud: Count = 115200
     spi_device: str = "/dev/spidev0.0"
     """icoBoard: the SPI device on the Pi."""
-    spi_speed_hz: int = 1_000_000
+    spi_speed_hz: Count = 1_000_000
     """icoBoard: SPI clock, Hz (icefloe's gateware takes 100 kHz .. 16.7 MHz, docs/gateware.md)."""
     sim_socket: str = "{run_dir}/icoboard.sock"
     """icoBoard in sim: the simulator's datagram socket (one datagram = one SPI exchange)."""
     protocol: Literal[1, 2] = 2
     """icoBoard SPI protocol version."""
-    sensors: int = 2
+    sensors: Annotated[int, Meta(ge=0, le=255)] = 2
     """icoBoard: number of sensors (encoders), M."""
-    actuators: int = 2
+    actuators: Annotated[int, Meta(ge=0, le=255)] = 2
     """icoBoard: number of actuators (PWM), N."""
-    pwm_hz: float = 20000.0
+    pwm_hz: Positive = 20000.0
     """icoBoard: PWM frequency of the motor outputs the gateware makes, Hz (docs/gateware.md)."""
 
 
 class Geometry(Section):
-    wheel_diameter: float = 0.065
+    wheel_diameter: Positive = 0.065
     """m."""
-    track: float = 0.156
+    track: Positive = 0.156
     """Distance between the wheels' contact points, m."""
-    ticks_per_rev: int = 384
+    ticks_per_rev: Count = 384
     """Encoder counts per wheel turn."""
 
 
 class Hwbridge(Section):
-    rate_hz: float = 1000.0
+    rate_hz: Hz = 1000.0
     """Real-time cycle rate. The PenguinPi link cannot hold 1 kHz at 115200 baud; see docs."""
-    serial_rate_hz: float = 200.0
+    serial_rate_hz: Hz = 200.0
     """PenguinPi: exchange rate on the serial link (MULTI_SET_VEL_GET_ENC)."""
-    wheels_rate_hz: float = 100.0
+    wheels_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 100.0
     """Rate of ``hw/wheels`` on the bus (0 = every cycle)."""
-    deadman_s: float = 0.5
+    deadman_s: Seconds = 0.5
     """Wheels stop when no command arrived for this long."""
-    max_wheel_speed: float = 0.5
+    max_wheel_speed: Positive = 0.5
     """Commands are clamped to this rim speed, m/s."""
-    max_accel: float = 2.0
+    max_accel: Positive = 2.0
     """Commanded rim speed changes at most this fast, m/s^2."""
-    priority: int = 80
+    priority: Annotated[int, Meta(ge=1, le=99)] = 80
     """SCHED_FIFO priority of the cycle (if the OS allows it)."""
-    cpu: int = -1
+    cpu: Annotated[int, Meta(ge=-1)] = -1
     """CPU to pin the cycle to (-1 = the last CPU)."""
-    kp: float = 20000.0
+    kp: NonNegative = 20000.0
     """icoBoard wheel PI controller: duty counts (32767 = 100 %) per (m/s) of speed error.
     The motors need ~48000 counts per m/s at steady state (docs/hwbridge.md)."""
-    ki: float = 200000.0
+    ki: NonNegative = 200000.0
     """Duty counts per (m/s * s) of integrated error (integral time kp/ki = 0.1 s)."""
-    speed_window_s: float = 0.05
+    speed_window_s: Seconds = 0.05
     """Measured wheel speed = encoder counts over this window, s (one count is ~0.5 mm)."""
 
 
 class Camera(Section):
     source: str = "sim"
     """"sim", "picamera2", "v4l2:<index or path>", or a folder/video file to replay."""
-    width: int = 640
-    height: int = 480
-    fps: float = 15.0
-    image_rate_hz: float = 2.0
+    width: Count = 640
+    height: Count = 480
+    fps: Hz = 15.0
+    image_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 2.0
     """Rate of ``camera/image`` on the bus (Wi-Fi is shared by a class)."""
-    image_width: int = 320
-    image_height: int = 240
-    jpeg_quality: int = 70
+    image_width: Count = 320
+    image_height: Count = 240
+    jpeg_quality: Annotated[int, Meta(ge=0, le=100)] = 70
     dictionary: str = "DICT_4X4_50"
-    marker_size: float = 0.12
+    marker_size: Positive = 0.12
     """Printed side of a marker's black square, m, for ids the world map does not list."""
     calibration: str = ""
     """Calibration file (OpenCV YAML/JSON with camera_matrix, dist_coeffs); "" = nominal."""
-    focal_px: float = 500.0
+    focal_px: Positive = 500.0
     """Nominal focal length in pixels when there is no calibration file."""
     mount_x: float = 0.05
     """Camera position ahead of the robot's centre, m."""
@@ -121,62 +142,67 @@ class Camera(Section):
 
 class Power(Section):
     source: Literal["board", "sim", "i2c"] = "board"
-    low_v: float = 7.0
-    critical_v: float = 6.5
-    critical_readings: int = 5
+    low_v: Positive = 7.0
+    critical_v: Positive = 6.5
+    critical_readings: Count = 5
     """Consecutive critical readings before shutting down."""
-    pole: float = 0.9
+    pole: Annotated[float, Meta(ge=0, lt=1)] = 0.9
     """First-order filter pole (0 = no filtering)."""
-    poweroff_command: list[str] = msgspec.field(default_factory=lambda: ["true"])
+    poweroff_command: Annotated[list[str], Meta(min_length=1)] = msgspec.field(default_factory=lambda: ["true"])
     """What powers the machine off, e.g. ["sudo", "systemctl", "poweroff"]."""
     gpio_chip: str = "/dev/gpiochip0"
-    button_line: int = 22
-    request_line: int = 10
-    ack_line: int = 11
+    button_line: Line = 22
+    request_line: Line = 10
+    ack_line: Line = 11
     gpio: Literal["gpiod", "sim", "none"] = "sim"
     """GPIO backend: "gpiod" (the Pi's lines), "sim" (the simulator's lines on `sim/gpio`), "none"."""
-    debounce_s: float = 0.02
+    debounce_s: Seconds = 0.02
     """Edges closer together than this are one bounce burst, s."""
-    button_hold_s: float = 0.5
+    button_hold_s: Seconds = 0.5
     """The shutdown button must be held this long, s (like the old GPIOSoftShutdown daemon)."""
-    request_hold_s: float = 15.0
+    request_hold_s: Seconds = 15.0
     """The board's request line must stay low this long, s (reflashing over SPI toggles it)."""
-    halt_timeout_s: float = 5.0
+    halt_timeout_s: Seconds = 5.0
     """How long to wait for hwbridge to confirm the wheels stopped (`cmd/halt`), s
     (longer than hwbridge's own 3 s, so we hear its answer)."""
-    silent_s: float = 5.0
+    silent_s: Seconds = 5.0
     """Battery readings that stop this long while the state is low start a shutdown, s
     (the PenguinPi firmware halts itself, and its readings, at 6.5 V)."""
-    ack_delay_s: float = 0.5
+    ack_delay_s: NonNegative = 0.5
     """Pause after dropping the acknowledge line, before powering off, s (the board shows its message)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.critical_v >= self.low_v:
+            raise ValueError(f"critical_v ({self.critical_v} V) must be below low_v ({self.low_v} V)")
 
 
 class Display(Section):
     kind: Literal["penguinpi", "ssd1306", "none"] = "penguinpi"
-    i2c_port: int = 1
-    i2c_address: int = 0x3C
-    rate_hz: float = 5.0
+    i2c_port: Annotated[int, Meta(ge=0)] = 1
+    i2c_address: Annotated[int, Meta(ge=0, le=0x7F)] = 0x3C
+    rate_hz: Annotated[float, Meta(gt=0, le=100)] = 5.0
 
 
 class Odometry(Section):
     """Dead reckoning from the wheel encoders (services/odometry, docs/odometry.md)."""
 
-    rate_hz: float = 50.0
+    rate_hz: Hz = 50.0
     """Rate of ``odom/pose`` on the bus, Hz."""
-    max_wheel_speed: float = 1.0
+    max_wheel_speed: Positive = 1.0
     """Plausibility limit, m/s: a count step faster than this (plus `jump_margin`) is a glitch, not motion."""
-    jump_margin: float = 0.005
+    jump_margin: NonNegative = 0.005
     """Allowance per sample on top of ``max_wheel_speed * dt``, m (timestamp jitter, one count)."""
-    gap_s: float = 0.25
+    gap_s: Seconds = 0.25
     """A silence on ``hw/wheels`` longer than this is logged (the motion across it is still integrated), s."""
-    speed_window_s: float = 0.1
+    speed_window_s: Seconds = 0.1
     """v and w are averaged over this much recent motion, s."""
 
 
 class Localizer(Section):
     world: str = "lab"
     """Landmark map: a world name (``lab``: ``deploy/worlds/lab.toml`` or your own, see `icefloe.paths`) or a path."""
-    rate_hz: float = 20.0
+    rate_hz: Hz = 20.0
     """Steady rate of ``loc/pose``, Hz (it is also published after every landmark update)."""
     init: Literal["config", "landmarks"] = "config"
     """Initial pose: "config" = initial_* below; "landmarks" = solved from the first frame with >= 2 known markers."""
@@ -186,25 +212,25 @@ class Localizer(Section):
     """m."""
     initial_theta: float = 0.0
     """rad."""
-    initial_sigma_xy: float = 0.1
+    initial_sigma_xy: Positive = 0.1
     """Standard deviation of the initial position, m."""
-    initial_sigma_theta: float = 0.1
+    initial_sigma_theta: Positive = 0.1
     """Standard deviation of the initial heading, rad."""
-    sigma_range: float = 0.03
+    sigma_range: Positive = 0.03
     """Landmark range noise, m (standard deviation, at any range)."""
-    sigma_range_rel: float = 0.02
+    sigma_range_rel: NonNegative = 0.02
     """Landmark range noise that grows with range, fraction of the range."""
-    sigma_bearing: float = 0.02
+    sigma_bearing: Positive = 0.02
     """Landmark bearing noise, rad."""
-    odom_sigma_d: float = 0.02
+    odom_sigma_d: NonNegative = 0.02
     """Odometry distance noise, m per sqrt(m) travelled (random walk)."""
-    odom_sigma_theta: float = 0.03
+    odom_sigma_theta: NonNegative = 0.03
     """Odometry heading noise from turning, rad per sqrt(rad) turned."""
-    odom_sigma_theta_d: float = 0.03
+    odom_sigma_theta_d: NonNegative = 0.03
     """Odometry heading noise from driving, rad per sqrt(m) travelled (slip, wheel radius errors)."""
-    gate_chi2: float = 11.83
+    gate_chi2: Positive = 11.83
     """Mahalanobis gate on (range, bearing): chi-square, 2 degrees of freedom (11.83 = 99.73 %, "3 sigma")."""
-    relocalize_after: int = 30
+    relocalize_after: Annotated[int, Meta(ge=0)] = 30
     """Lost: after this many sightings in a row fail the gate, restart from the next frame
     showing >= 2 known markers (0 = never)."""
 
@@ -212,17 +238,17 @@ class Localizer(Section):
 class Sim(Section):
     world: str = "lab"
     """The simulated world: a world name or a path, as `Localizer.world`."""
-    seed: int = 0
+    seed: Annotated[int, Meta(ge=0)] = 0
     """Random seed for slip and noise (0 = pick one and print it)."""
-    slip: float = 0.0
+    slip: Annotated[float, Meta(ge=0, le=1)] = 0.0
     """Relative wheel slip noise (0 = none)."""
-    encoder_noise: float = 0.0
-    truth_rate_hz: float = 50.0
+    encoder_noise: NonNegative = 0.0
+    truth_rate_hz: Hz = 50.0
     camera: bool = True
     icoboard: Literal["python", "gateware"] = "python"
     """The simulated icoBoard: "python" (the protocol model, sim/icoboard.py) or "gateware"
     (the FPGA design itself, compiled, its pins wired to the world; docs/gateware.md)."""
-    gateware_clk_hz: float = 1e6
+    gateware_clk_hz: Positive = 1e6
     """icoboard = "gateware": the FPGA clock in the simulation, Hz (the board's is 100 MHz;
     scaled down so the simulation keeps real time)."""
 
@@ -231,11 +257,11 @@ class Webapi(Section):
     """The PenguinPi-compatible HTTP API (``services/webapi``, docs/webapi.md)."""
 
     host: str = "0.0.0.0"
-    port: int = 8080
+    port: Port = 8080
     """TCP port of the HTTP server (the old PenguinPi server used 8080)."""
-    max_demand: int = 100
+    max_demand: Count = 100
     """Largest wheel speed accepted, in PenguinPi firmware demand units (about 5.3 mm/s each)."""
-    max_time: float = 30.0
+    max_time: Seconds = 30.0
     """Longest timed motion accepted by /robot/set/velocity, s."""
 
 

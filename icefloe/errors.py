@@ -5,6 +5,12 @@ that was wrong (the key, the field, the port, the config key) so that a student
 reading a log line knows where to look.
 """
 
+EXIT_CONFIG = 78
+"""Exit status of a process that refused its robot config (``EX_CONFIG`` of sysexits.h): a bad
+value, a missing file or device, a board that does not match. Starting it again cannot help, so
+`icefloe up` does not restart it (it stops the robot, saying why) and systemd neither
+(``RestartPreventExitStatus``). `icefloe.runtime.run` exits with it on a `ConfigError`."""
+
 
 class IcefloeError(Exception):
     """Base class of every icefloe error."""

@@ -53,7 +53,7 @@ import zenoh
 from . import config as config_mod
 from .config import RobotConfig
 from .credentials import GUEST_PASSWORD, GUEST_USER
-from .errors import BadPayload, ConfigError, NotReachable
+from .errors import EXIT_CONFIG, BadPayload, ConfigError, NotReachable
 from .logs import LimitedLog, printable
 from .schemas import codec, keys
 from .schemas.keys import Topic
@@ -569,6 +569,8 @@ def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str
     """Run a service's ``main(config)`` until it returns or SIGINT/SIGTERM arrives.
 
     A non-zero int returned by ``main`` becomes the process's exit status (a signal exits 0).
+    A `ConfigError` (reading the config, or raised by ``main``) is one line on stderr and the
+    exit status `EXIT_CONFIG`, which `icefloe up` does not restart.
     """
     args = arguments(description or main.__module__, argv)
     logging.basicConfig(stream=sys.stderr, level=args.log_level.upper(),
@@ -577,7 +579,7 @@ def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str
         cfg = load_config(args)
     except ConfigError as exc:
         print(f"icefloe: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+        raise SystemExit(EXIT_CONFIG) from None
 
     async def supervised() -> int | None:
         loop = asyncio.get_running_loop()
@@ -590,6 +592,10 @@ def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str
         except asyncio.CancelledError:
             return 0
 
-    status = run_async(supervised())
+    try:
+        status = run_async(supervised())
+    except ConfigError as exc:
+        print(f"icefloe: {exc}", file=sys.stderr, flush=True)
+        raise SystemExit(EXIT_CONFIG) from None
     if status:
         raise SystemExit(status)

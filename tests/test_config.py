@@ -91,3 +91,31 @@ def test_extends_loop_is_an_error(tmp_path: Path) -> None:
     write(tmp_path, 'extends = "a.toml"\n', "b.toml")
     with pytest.raises(ConfigError, match="loops back"):
         config.load(tmp_path / "a.toml")
+
+
+@pytest.mark.parametrize(("toml", "named"), [
+    ("[hwbridge]\ndeadman_s = -1", "hwbridge.deadman_s: Expected `float` > 0.0"),
+    ("[hwbridge]\ndeadman_s = inf", "hwbridge.deadman_s: Expected `float` <= 86400.0"),
+    ("[hwbridge]\nrate_hz = 0.0", "hwbridge.rate_hz: Expected `float` > 0.0"),
+    ("[hwbridge]\nrate_hz = 50_000.0", "hwbridge.rate_hz: Expected `float` <= 10000.0"),
+    ("[hwbridge]\nwheels_rate_hz = -1.0", "hwbridge.wheels_rate_hz: Expected `float` >= 0.0"),
+    ("[hwbridge]\nkp = nan", "hwbridge.kp: Expected `float` >= 0.0"),
+    ("[hwbridge]\npriority = 100", "hwbridge.priority: Expected `int` <= 99"),
+    ("[geometry]\nticks_per_rev = 0", "geometry.ticks_per_rev: Expected `int` >= 1"),
+    ("[geometry]\ntrack = -0.1", "geometry.track: Expected `float` > 0.0"),
+    ("[odometry]\nrate_hz = 0", "odometry.rate_hz: Expected `float` > 0.0"),
+    ("[localizer]\nsigma_bearing = 0.0", "localizer.sigma_bearing: Expected `float` > 0.0"),
+    ("[localizer]\ninitial_x = inf", "localizer: `initial_x` must be a finite number, got inf"),
+    ("[power]\ncritical_v = 7.5", "power: critical_v (7.5 V) must be below low_v (7.0 V)"),
+    ("[power]\npole = 1.0", "power.pole: Expected `float` < 1.0"),
+    ("[power]\npoweroff_command = []", "power.poweroff_command: Expected `array` of length >= 1"),
+    ("[display]\nrate_hz = 1000", "display.rate_hz: Expected `float` <= 100.0"),
+    ("[sim]\ntruth_rate_hz = -5", "sim.truth_rate_hz: Expected `float` > 0.0"),
+    ("[webapi]\nport = 70000", "webapi.port: Expected `int` <= 65535"),
+    ("[camera]\njpeg_quality = 101", "camera.jpeg_quality: Expected `int` <= 100"),
+])
+def test_a_value_out_of_range_is_refused_naming_the_key(tmp_path: Path, toml: str, named: str) -> None:
+    path = write(tmp_path, f'extends = "sim"\n{toml}\n')
+    with pytest.raises(ConfigError) as refused:
+        config.load(path)
+    assert str(refused.value) == f"{path}: {named}"
