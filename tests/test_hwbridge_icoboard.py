@@ -17,6 +17,7 @@ from test_hwbridge_helpers import (
     start_stack,
 )
 
+from icefloe.errors import EXIT_CONFIG
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.hwbridge.shm import Shared, block_name
@@ -99,7 +100,7 @@ async def test_mismatched_board_refuses_to_run(make_robot) -> None:
         await sim_state(node, "force_descriptor", sensors=3, actuators=2)
         hw = robot.start("hwbridge")
         await wait_for(lambda: not hw.alive(), timeout=20)
-        assert hw.popen.returncode == 3  # a failure a supervisor (icefloe up, systemd) sees
+        assert hw.popen.returncode == EXIT_CONFIG  # not restarted by icefloe up or systemd
         assert "refusing to run: icoBoard START descriptor does not match the config" in hw.output
         assert "sensors M = 3 (config says 2)" in hw.output
         state = await sim_state(node)

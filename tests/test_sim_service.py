@@ -13,7 +13,7 @@ import pytest
 from conftest import Robot
 
 from icefloe.config import parse
-from icefloe.errors import BadPayload, BoardMismatch, NotReachable
+from icefloe.errors import EXIT_CONFIG, BadPayload, BoardMismatch, NotReachable
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -149,17 +149,29 @@ async def test_penguinpi_sim_process(robot: Robot) -> None:
     assert "Traceback" not in proc.output
 
 
-def test_unusable_socket_path_is_one_clear_error(make_robot: Callable[..., Robot]) -> None:
-    robot = make_robot('[board]\nkind = "icoboard"\nsim_socket = "/proc/no/such/ico.sock"\n')
+@pytest.mark.parametrize(("board", "key"), [('kind = "icoboard"\nsim_socket = "{dir}/ico.sock"', "sim_socket"),
+                                          ('serial_port = "{dir}/ttyUSB0"', "serial_port")])
+def test_a_device_path_outside_the_run_dir_is_refused(make_robot: Callable[..., Robot], tmp_path: Path,
+                                                      board: str, key: str) -> None:
+    elsewhere = tmp_path / "not-run-dir" / "dev"
+    robot = make_robot("[board]\n" + board.format(dir=elsewhere) + "\n")
     proc = robot.start("sim")
-    assert proc.popen.wait(20) == 1
-    assert "cannot start the simulated icoboard: " in proc.output
+    assert proc.popen.wait(20) == EXIT_CONFIG
+    assert f"board.{key}: {elsewhere}/" in proc.output and "is outside the run directory" in proc.output
     assert "Traceback" not in proc.output
+    assert not elsewhere.parent.exists()  # nothing made there, not even the folder
+
+
+def test_the_simulator_refuses_a_real_board(make_robot: Callable[..., Robot]) -> None:
+    robot = make_robot('[board]\nbackend = "hardware"\nserial_port = "/dev/null"\n')
+    proc = robot.start("sim")
+    assert proc.popen.wait(20) == EXIT_CONFIG
+    assert 'board.backend = \'hardware\': the simulator runs only for a simulated board' in proc.output
 
 
 def test_penguinpi_shutdown_lines_reach_the_firmware(tmp_path: Path) -> None:
     """GPIO10 follows the firmware's PB5; GPIO11 (the Pi's daemon line) reaches its PB7."""
-    config = parse({"run_dir": str(tmp_path), "sim": {"seed": 3}})
+    config = parse({"run_dir": str(tmp_path), "sim": {"seed": 3}, "board": {"serial_port": "{run_dir}/ttyPPI"}})
     sim = Simulator(config)
     try:
         firmware = sim.board.model

@@ -107,13 +107,9 @@ def make_detector(config: RobotConfig) -> Detector:
     return Detector(cam.dictionary, Intrinsics.from_config(cam), Mount.from_config(cam), sizes, cam.marker_size)
 
 
-async def main(config: RobotConfig) -> int:
+async def main(config: RobotConfig) -> None:
     cam = config.camera
-    try:
-        detector = make_detector(config)
-    except (ConfigError, AttributeError) as exc:
-        print(f"camera: {exc}", flush=True)
-        return 2
+    detector = make_detector(config)  # ConfigError for a bad calibration file: run() says so, exits
     async with Node("camera", config) as node:
         slot, stop, sources = LatestFrame(), threading.Event(), []
         landmarks = node.publisher(keys.LANDMARKS)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from icefloe.errors import IcefloeError
+from icefloe.errors import ConfigError, IcefloeError
 from icefloe.schemas import messages as m
 
 from .geometry import Intrinsics, Mount, range_bearing
@@ -34,6 +34,14 @@ def check_frame(image: object, width: int, height: int) -> np.ndarray:
     return image
 
 
+def aruco_dictionary(name: str) -> int:
+    """OpenCV's id of a predefined ArUco dictionary (``camera.dictionary``, e.g. "DICT_4X4_50")."""
+    value = getattr(cv2.aruco, name, None) if name.startswith("DICT_") else None
+    if not isinstance(value, int):
+        raise ConfigError(f"camera.dictionary: {name!r} is not an OpenCV ArUco dictionary (e.g. DICT_4X4_50)")
+    return value
+
+
 class Detector:
     def __init__(self, dictionary: str, intrinsics: Intrinsics, mount: Mount,
                  sizes: dict[int, float], default_size: float) -> None:
@@ -47,7 +55,7 @@ class Detector:
         params.cornerRefinementWinSize = 3
         params.cornerRefinementMinAccuracy = 0.01
         params.cornerRefinementMaxIterations = 100
-        self._aruco = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)),
+        self._aruco = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(aruco_dictionary(dictionary)),
                                               params)
         self.k, self.dist = intrinsics.camera_matrix, intrinsics.dist_coeffs
         self.width, self.height = intrinsics.width, intrinsics.height

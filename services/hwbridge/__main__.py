@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -31,7 +30,7 @@ import msgspec
 import zenoh
 
 from icefloe.config import RobotConfig
-from icefloe.errors import BadPayload, ConfigError
+from icefloe.errors import EXIT_CONFIG, BadPayload
 from icefloe.runtime import Node, run
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
@@ -44,30 +43,10 @@ RESTART_DELAY_S = 1.0
 """Wait before restarting a real-time process that died."""
 
 
-def check_config(config: RobotConfig) -> None:
-    """Reject hwbridge settings the cycle cannot run with (`ConfigError` naming the key)."""
-    hw, g = config.hwbridge, config.geometry
-    positive = {
-        "hwbridge.rate_hz": hw.rate_hz, "hwbridge.serial_rate_hz": hw.serial_rate_hz,
-        "hwbridge.deadman_s": hw.deadman_s, "hwbridge.max_wheel_speed": hw.max_wheel_speed,
-        "hwbridge.max_accel": hw.max_accel, "hwbridge.speed_window_s": hw.speed_window_s,
-        "geometry.wheel_diameter": g.wheel_diameter, "geometry.track": g.track,
-        "geometry.ticks_per_rev": g.ticks_per_rev,
-    }
-    for name, value in positive.items():
-        if not (math.isfinite(value) and value > 0):
-            raise ConfigError(f"{config.source}: {name}: must be a positive number, got {value}")
-    if hw.rate_hz > 10_000:
-        raise ConfigError(f"{config.source}: hwbridge.rate_hz: at most 10000 Hz, got {hw.rate_hz}")
-    if not (math.isfinite(hw.wheels_rate_hz) and hw.wheels_rate_hz >= 0):
-        raise ConfigError(f"{config.source}: hwbridge.wheels_rate_hz: must be >= 0 "
-                          f"(0 = every cycle), got {hw.wheels_rate_hz}")
-
-
 async def supervise(config: RobotConfig, bridge: Bridge, node: Node) -> int:
     """Run the real-time process; restart it when it dies; stop it when we are cancelled.
 
-    Returns only when the board refused to run (its exit status)."""
+    Returns only when the board does not match the config (`EXIT_CONFIG`)."""
     payload = msgspec.json.encode(config)
     shared = bridge.shared
     while True:
@@ -88,7 +67,7 @@ async def supervise(config: RobotConfig, bridge: Bridge, node: Node) -> int:
         bridge.forward_messages()  # its last words (e.g. why it refused the board)
         if code == EXIT_MISMATCH:
             node.log.error("the board does not match the config; hwbridge stops (see above)")
-            return code
+            return EXIT_CONFIG  # restarting cannot help: icefloe up stops the robot
         node.log.error("real-time process exited with status %s; restarting in %.0f s",
                        code, RESTART_DELAY_S)
         await asyncio.sleep(RESTART_DELAY_S)
@@ -163,15 +142,10 @@ arriving on a Zenoh thread does not wait behind the event loop for milliseconds.
 
 
 async def main(config: RobotConfig) -> int:
-    """Returns the exit status: 0 when stopped by a signal, 2 for a bad config, 3 when the board
-    does not match the config."""
+    """Returns the exit status: 0 when stopped by a signal, `EXIT_CONFIG` when the board does not
+    match the config. (The config's values were checked when it was read.)"""
     sys.setswitchinterval(GIL_SWITCH_S)
     async with Node("hwbridge", config) as node:
-        try:
-            check_config(config)
-        except ConfigError as exc:
-            node.log.error("%s", exc)
-            return 2
         shared = Shared.create(block_name(config.name))
         bridge = Bridge(config, shared, node.log)
         stop_sub = fast_stop(node, bridge)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import asyncio
 
 from icefloe.config import RobotConfig
-from icefloe.errors import ConfigError
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 
@@ -29,11 +28,7 @@ from .tracker import Localizer
 
 async def main(config: RobotConfig) -> None:
     async with Node("localizer", config) as node:
-        try:
-            loc = Localizer(config, node.log)
-        except ConfigError as exc:  # a bad world file or noise value: say which and stop
-            node.log.error("localizer: %s", exc)
-            raise SystemExit(2) from None
+        loc = Localizer(config, node.log)  # ConfigError for a bad world file: run() says so, exits
         period = 1.0 / config.localizer.rate_hz
         pub = node.publisher(keys.LOC_POSE)
         node.log.info("localizer: %d landmarks from %s, init %s", len(loc.ekf.landmarks),

@@ -11,7 +11,6 @@ import math
 from collections import deque
 
 from icefloe.config import RobotConfig
-from icefloe.errors import ConfigError
 from icefloe.logs import LimitedLog
 from icefloe.schemas import messages as m
 from icefloe.worldmap import load_world
@@ -21,14 +20,9 @@ from .ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sigh
 
 
 def make_ekf(config: RobotConfig) -> Ekf:
-    """The filter configured from the robot config (loads the world map); `ConfigError` naming a bad key."""
+    """The filter configured from the robot config (whose values were checked when it was read) and
+    its world map; `ConfigError` naming the world file if that is bad."""
     c = config.localizer
-    for key in ("rate_hz", "initial_sigma_xy", "initial_sigma_theta", "sigma_range", "sigma_bearing", "gate_chi2"):
-        if not getattr(c, key) > 0:
-            raise ConfigError(f"{config.source}: localizer.{key} must be > 0, got {getattr(c, key)}")
-    for key in ("sigma_range_rel", "odom_sigma_d", "odom_sigma_theta", "odom_sigma_theta_d", "relocalize_after"):
-        if getattr(c, key) < 0:
-            raise ConfigError(f"{config.source}: localizer.{key} must be >= 0, got {getattr(c, key)}")
     world = load_world(c.world)
     noise = Noise(c.sigma_range, c.sigma_range_rel, c.sigma_bearing,
                   c.odom_sigma_d, c.odom_sigma_theta, c.odom_sigma_theta_d)

@@ -34,16 +34,6 @@ QUEUE = 4096
 which loses no motion."""
 
 
-def check(config: RobotConfig) -> None:
-    """Refuse a config the integration cannot work with: SystemExit naming the key."""
-    g, o = config.geometry, config.odometry
-    for key, value in (("geometry.wheel_diameter", g.wheel_diameter), ("geometry.track", g.track),
-                       ("geometry.ticks_per_rev", g.ticks_per_rev), ("odometry.rate_hz", o.rate_hz),
-                       ("odometry.max_wheel_speed", o.max_wheel_speed), ("odometry.speed_window_s", o.speed_window_s)):
-        if not value > 0:
-            raise SystemExit(f"icefloe odometry: {config.source}: {key} must be > 0, got {value}")
-
-
 def make_odometry(config: RobotConfig) -> Odometry:
     """The pure integrator configured from the robot config."""
     g, o = config.geometry, config.odometry
@@ -81,8 +71,7 @@ class EventLog:
 
 
 async def main(config: RobotConfig) -> None:
-    check(config)
-    odo = make_odometry(config)
+    odo = make_odometry(config)  # the config's values were checked when it was read
     period = 1.0 / config.odometry.rate_hz
     async with Node("odometry", config) as node:
         events = EventLog(node.log)

@@ -145,9 +145,6 @@ class Oled:
 
 
 async def main(config: RobotConfig) -> None:
-    if not 0 < config.display.rate_hz <= 100:
-        raise SystemExit(f"icefloe: {config.source}: display.rate_hz must be in (0, 100] Hz, "
-                         f"got {config.display.rate_hz}")
     async with Node("oled", config) as node:
         sink = open_sink(node, config.display)
         oled = Oled(node, sink)

@@ -98,22 +98,7 @@ async def watch_lines(lines: Lines, power: Power, shutdown: Shutdown) -> None:
         tasks.create_task(refresh())
 
 
-def check(config: RobotConfig) -> None:
-    """Refuse to start on power settings that cannot work (one line naming the key)."""
-    p = config.power
-    try:
-        BatteryMonitor(p.low_v, p.critical_v, p.critical_readings, p.pole)
-    except ValueError as exc:
-        raise SystemExit(f"icefloe: {config.source}: {exc}") from None
-    for name in ("debounce_s", "button_hold_s", "request_hold_s", "halt_timeout_s", "silent_s"):
-        if not getattr(p, name) > 0:
-            raise SystemExit(f"icefloe: {config.source}: power.{name} must be > 0 s")
-    if not p.poweroff_command:
-        raise SystemExit(f"icefloe: {config.source}: power.poweroff_command is empty")
-
-
 async def main(config: RobotConfig) -> None:
-    check(config)
     async with Node("power", config) as node:
         # fifo: persistence counts consecutive readings, so none may be skipped.
         readings = node.subscribe(keys.HW_BATTERY, latest=False)

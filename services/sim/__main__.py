@@ -30,7 +30,7 @@ from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.sim.gpio import ACK, BUTTON, REQUEST
 
-from .simulator import Simulator
+from .simulator import Simulator, check_config
 
 GPIO_REFRESH_S = 1.0
 """Period of the full `sim/gpio` refresh, for services that start after us, s."""
@@ -41,8 +41,7 @@ GIL_SWITCH_S = 0.0002
 
 
 async def main(config: RobotConfig) -> None:
-    if not config.sim.truth_rate_hz > 0:
-        raise SystemExit(f"icefloe sim: sim.truth_rate_hz must be > 0, got {config.sim.truth_rate_hz}")
+    check_config(config)  # before anything is created: a real board, a device outside run_dir
     # The board's I/O thread must answer an exchange well inside hwbridge's 1 ms cycle,
     # also while the clock thread or a Zenoh callback is busy in Python.
     sys.setswitchinterval(GIL_SWITCH_S)

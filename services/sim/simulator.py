@@ -11,9 +11,10 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 from icefloe.config import RobotConfig
-from icefloe.errors import BadPayload
+from icefloe.errors import BadPayload, ConfigError
 from icefloe.schemas import messages as m
 from icefloe.sim.clock import SimClock
 from icefloe.sim.gpio import BUTTON, GpioLines
@@ -26,6 +27,26 @@ from icefloe.wire.icoboard import Descriptor
 log = logging.getLogger("icefloe.sim")
 
 
+def device_path(config: RobotConfig) -> tuple[str, Path]:
+    """The config key and the path of the simulated board's device (pseudo-terminal or socket)."""
+    b = config.board
+    key, path = ("sim_socket", b.sim_socket) if b.kind == "icoboard" else ("serial_port", b.serial_port)
+    return key, Path(path)
+
+
+def check_config(config: RobotConfig) -> None:
+    """Refuse to simulate a real board, or to make a device anywhere but in the run directory
+    (a wrong ``serial_port`` must not become a fake ``/dev/ttyUSB0`` that hwbridge drives)."""
+    if config.board.backend != "sim":
+        raise ConfigError(f"{config.source}: board.backend = {config.board.backend!r}: the simulator runs only "
+                          f"for a simulated board (backend = \"sim\")")
+    key, path = device_path(config)
+    run_dir = config.runtime_dir.resolve()
+    if not (path.parent.resolve() / path.name).is_relative_to(run_dir):
+        raise ConfigError(f"{config.source}: board.{key}: {path} is outside the run directory {run_dir}; "
+                          f"the simulator makes its device only there (\"{{run_dir}}/{path.name}\")")
+
+
 GATEWARE_CATCH_UP = 5
 """Steps the clock may run back to back to catch up, with the gateware as the board (ms)."""
 
@@ -35,12 +56,12 @@ def _icoboard_model(config: RobotConfig, world: World) -> BoardModel | None:
     if config.sim.icoboard != "gateware":
         return None
     if config.board.protocol != 2:
-        raise ValueError("the icoBoard gateware speaks protocol v2 only ([board] protocol = 2)")
+        raise ConfigError(f"{config.source}: board.protocol: the icoBoard gateware speaks protocol v2 only")
     try:
         from icefloe.sim.icoboard_gateware import GatewareBoardModel
-    except ImportError as exc:
-        raise ValueError(f'[sim] icoboard = "gateware" needs the gateware extra ({exc}): '
-                         "pip install -e '.[gateware]'") from None
+    except ImportError as exc:  # a restart cannot help: ConfigError (exit 78), not a crash
+        raise ConfigError(f'{config.source}: sim.icoboard = "gateware" needs the gateware extra ({exc}): '
+                          "pip install -e '.[gateware]'") from None
     return GatewareBoardModel(world, config.board, clk_hz=config.sim.gateware_clk_hz, seed=world.seed)
 
 
@@ -49,7 +70,10 @@ class Simulator:
 
     def __init__(self, config: RobotConfig,
                  on_gpio: Callable[[int, int], None] | None = None) -> None:
-        """``on_gpio(line, level)``: called on any thread when a line changes level."""
+        """``on_gpio(line, level)``: called on any thread when a line changes level.
+
+        `ConfigError` for a config of a real board, or a device path outside the run directory."""
+        check_config(config)
         self.config = config
         sim = config.sim
         self.world = World(config.geometry, seed=sim.seed, slip=sim.slip,

@@ -22,7 +22,7 @@ from aiohttp.http_exceptions import HttpProcessingError
 
 from icefloe.client import AsyncRobot
 from icefloe.errors import NotReachable
-from icefloe.logs import LimitedLog
+from icefloe.logs import LimitedLog, printable
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -83,8 +83,9 @@ class ServerLog(logging.LoggerAdapter):
         if not isinstance(exc, HttpProcessingError):
             return False
         remote = f" from {args[0]}" if args else ""  # aiohttp: "Error handling request from %s", remote
+        what = exc.message.split("\n", 1)[0].strip(" :")  # the rest quotes the request
         self.limited.warning("bad HTTP request", "bad HTTP request%s, answered %d: %s: %s", remote,
-                             exc.code or 400, type(exc).__name__, exc.message)
+                             exc.code or 400, type(exc).__name__, printable(what, 80))
         return True
 
     def exception(self, msg: object, *args: object, exc_info: Any = True, **kwargs: Any) -> None:
