@@ -1,11 +1,18 @@
 """`icefloe up`: run every service of a robot as its own process.
 
+Before anything starts, the whole robot is checked (`problems`): the config's values
+(checked when it was read), credentials when access control is on, the devices of a
+real board, the files the services read. A robot that cannot run starts nothing and
+says why, one line per problem. A real board (``board.backend = "hardware"``) never
+gets the simulator.
+
 The router starts first (every service is a client of it), then the services
 listed in the robot config, in order. Each child's output is prefixed with its
 name. A child that dies is restarted with back-off (1 s, 2 s, 4 s ... 30 s; the
-back-off resets once it has run for a minute). Ctrl-C (or SIGTERM) stops the
-services in reverse order with SIGINT, waits, and kills what is left, so no
-process stays behind.
+back-off resets once it has run for a minute), except one that exits with
+`EXIT_CONFIG` (it refused the config: starting it again cannot help): then the
+whole robot stops, saying so. Ctrl-C (or SIGTERM) stops the services in reverse
+order with SIGINT, waits, and kills what is left, so no process stays behind.
 """
 
 from __future__ import annotations
@@ -17,10 +24,12 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from .config import RobotConfig
+from .errors import EXIT_CONFIG, ConfigError
 from .runtime import run_async
 
 STOP_TIMEOUT = 8.0
@@ -69,6 +78,9 @@ class Launcher:
         self.children = [Child("router", [*base, "icefloe.router", *cfg])]
         self.children += [Child(s, [*base, f"icefloe.services.{s}", *cfg]) for s in services]
         self._stopping = False
+        self._stop = asyncio.Event()
+        self.refused: str | None = None
+        """The service that exited with `EXIT_CONFIG`, if one did (the robot then stopped)."""
 
     def say(self, name: str, line: str) -> None:
         print(self._fmt.format(name) + line, file=self.out, flush=True)
@@ -96,6 +108,12 @@ class Launcher:
             await asyncio.gather(*child.pumps, return_exceptions=True)
             if self._stopping:
                 return
+            if code == EXIT_CONFIG:
+                self.say("up", f"{child.name} refused the robot's config (exit status {code}; see above): "
+                               "not restarting it, stopping the robot")
+                self.refused = child.name
+                self._stop.set()
+                return
             if time.monotonic() - child.started > HEALTHY_AFTER:
                 child.backoff = 1.0
             self.say(child.name, f"exited with code {code}; restarting in {child.backoff:.0f} s")
@@ -116,7 +134,7 @@ class Launcher:
 
     async def run(self) -> None:
         loop = asyncio.get_running_loop()
-        stop = asyncio.Event()
+        stop = self._stop
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
         router, *services = self.children
@@ -149,11 +167,81 @@ class Launcher:
         self.say("up", "all stopped")
 
 
-def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> None:
-    """Run the router and the ``wanted`` services that exist, until Ctrl-C."""
+def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> int:
+    """Check the robot, then run the router and the ``wanted`` services that exist, until Ctrl-C.
+    Returns the exit status: 0, or `EXIT_CONFIG` when the robot cannot run with this config."""
     services = [s for s in wanted if available(s)]
-    missing = [s for s in wanted if s not in services]
+    notes = []
+    if missing := [s for s in wanted if s not in services]:
+        notes.append(f"not available yet, skipped: {', '.join(missing)}")
+    if config.board.backend == "hardware" and "sim" in services:
+        services.remove("sim")
+        notes.append('not starting sim: the board is real (board.backend = "hardware")')
+    found = problems(config, services)
+    for problem in found:
+        print(f"icefloe: {problem}", file=sys.stderr, flush=True)
+    if found:
+        return EXIT_CONFIG
     launcher = Launcher(config, config_path, services)
-    if missing:
-        launcher.say("up", f"not available yet, skipped: {', '.join(missing)}")
+    for note in notes:
+        launcher.say("up", note)
     run_async(launcher.run())
+    return EXIT_CONFIG if launcher.refused else 0
+
+
+# ---------------------------------------------------------------------- before anything starts
+
+
+def problems(config: RobotConfig, services: Sequence[str]) -> list[str]:
+    """Why this robot cannot run ``services``, one line each (none: it can).
+
+    The values of the config were checked when it was read (`icefloe.config`); here is what
+    depends on the machine and on the files the services read: credentials, a real board's
+    devices, world maps, the camera's calibration, the simulator's device paths.
+    """
+    from .router import check_credentials
+    from .worldmap import load_world
+
+    found: list[str] = []
+
+    def check(what: Callable[[], object]) -> None:
+        try:
+            what()
+        except ConfigError as exc:
+            found.append(str(exc))
+
+    check(lambda: check_credentials(config))
+    b = config.board
+    if "hwbridge" in services and b.backend == "hardware":
+        key, path = ("serial_port", b.serial_port) if b.kind == "penguinpi" else ("spi_device", b.spi_device)
+        check(lambda: _device(config, f"board.{key}", path, f'the {b.kind} board, board.backend = "hardware"'))
+    if "power" in services and config.power.gpio == "gpiod":
+        check(lambda: _device(config, "power.gpio_chip", config.power.gpio_chip, 'power.gpio = "gpiod"'))
+    if "oled" in services and config.display.kind == "ssd1306":
+        check(lambda: _device(config, "display.i2c_port", f"/dev/i2c-{config.display.i2c_port}",
+                              'display.kind = "ssd1306"'))
+    if "sim" in services:
+        from .services.sim.simulator import check_config as check_sim
+
+        check(lambda: check_sim(config))
+        check(lambda: load_world(config.sim.world))
+    if "localizer" in services:
+        check(lambda: load_world(config.localizer.world))
+    if "camera" in services:
+        from .services.camera.__main__ import make_detector  # dictionary, calibration file
+
+        check(lambda: make_detector(config))
+    z = config.zenoh
+    for key in ("config", "tls_certificate", "tls_private_key", "tls_root_ca"):
+        path = getattr(z, key)
+        if path and not Path(path).expanduser().is_file():
+            found.append(f"{config.source}: zenoh.{key}: {path}: no such file")
+    return found
+
+
+def _device(config: RobotConfig, key: str, path: str, why: str) -> None:
+    p = Path(path)
+    if not p.exists():
+        raise ConfigError(f"{config.source}: {key}: {path}: no such device ({why})")
+    if not (p.is_char_device() or p.is_block_device()):
+        raise ConfigError(f"{config.source}: {key}: {path} is not a device ({why})")

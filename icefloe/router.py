@@ -57,6 +57,14 @@ def acl_rules(owners: Iterable[tuple[str, str]]) -> str:
                        "subjects": subjects, "policies": policies})
 
 
+def check_credentials(config: RobotConfig) -> None:
+    """`ConfigError` if access control is on but the robot has no credentials (nothing may start)."""
+    if config.zenoh.access_control and not config.zenoh.user:
+        where = config.zenoh.credentials or "(zenoh.credentials is not set)"
+        raise ConfigError(f"{config.source}: zenoh.access_control is on but there are no credentials "
+                          f"at {where}: run `icefloe credentials {config.source}`")
+
+
 def router_config(config: RobotConfig, owners: list[tuple[str, str, str]] | None = None) -> zenoh.Config:
     """Zenoh config of the router; ``owners`` = (robot, user, password) for access control."""
     zc = zenoh_config(config, mode="router", listen=config.zenoh.listen)
@@ -66,10 +74,7 @@ def router_config(config: RobotConfig, owners: list[tuple[str, str, str]] | None
     # Our large messages (camera JPEGs, 2 Hz) cost a copy instead.
     zc.insert_json5("transport/shared_memory/enabled", "false")
     if owners is None and config.zenoh.access_control:
-        if not config.zenoh.user:
-            where = config.zenoh.credentials or "(zenoh.credentials is not set)"
-            raise ConfigError(f"{config.source}: zenoh.access_control is on but there are no credentials "
-                              f"at {where}: run `icefloe credentials {config.source}`")
+        check_credentials(config)
         owners = [(config.name, config.zenoh.user, config.zenoh.password)]
     if owners:
         users = config.runtime_dir / "zenoh-users"

@@ -13,6 +13,8 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, Robot, processes_naming, robot_config
 
+from icefloe.errors import EXIT_CONFIG
+
 ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
 
 
@@ -86,7 +88,7 @@ def test_up_rejects_a_bad_config_and_starts_nothing(tmp_path: Path) -> None:
     cfg = tmp_path / "bad.toml"
     cfg.write_text('[hwbridge]\ndeadman_s = "soon"\n')
     res = subprocess.run([*ICEFLOE, "up", str(cfg), "--no-viz"], capture_output=True, text=True, timeout=20)
-    assert res.returncode == 2
+    assert res.returncode == EXIT_CONFIG
     assert "bad.toml: hwbridge.deadman_s: Expected `float`, got `str`" in res.stderr
 
 

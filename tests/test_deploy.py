@@ -36,7 +36,8 @@ def test_dry_run_lists_every_unit_and_changes_nothing(dry_run: str) -> None:
 def test_dry_run_shows_the_real_time_settings_of_hwbridge(dry_run: str) -> None:
     unit = dry_run.split("write /etc/systemd/system/icefloe-hwbridge.service")[1].split("\n* ")[0]
     for setting in ("CPUSchedulingPolicy=fifo", "CPUSchedulingPriority=", "LimitMEMLOCK=infinity",
-                    "LimitRTPRIO=", "CPUAffinity=", "KillSignal=SIGINT", "Restart=on-failure"):
+                    "LimitRTPRIO=", "CPUAffinity=", "KillSignal=SIGINT", "Restart=on-failure",
+                    "RestartPreventExitStatus=78"):
         assert setting in unit, setting
     assert "isolcpus=" in dry_run
 

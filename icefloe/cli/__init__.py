@@ -18,7 +18,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from ..errors import IcefloeError
+from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
 VERB_MODULES = ("robot", "bus", "schemas", "viz", "gateware")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
@@ -46,6 +46,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(sys.argv[1:] if argv is None else list(argv))
     try:
         return int(args.run(args) or 0)
+    except ConfigError as exc:
+        print(f"icefloe: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
     except IcefloeError as exc:
         print(f"icefloe: {exc}", file=sys.stderr)
         return 2

@@ -28,8 +28,7 @@ def up(args: argparse.Namespace) -> int:
     if not args.only and not args.no_viz and can_show_viewer():
         services.append("viz")  # the laptop's view of the robot
     skip = args.skip.split(",") if args.skip else []
-    launcher.up(cfg, path, [s for s in services if s not in skip])
-    return 0
+    return launcher.up(cfg, path, [s for s in services if s not in skip])  # checks the robot first
 
 
 def sim_override(path: Path, cfg: RobotConfig) -> Path:
