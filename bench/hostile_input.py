@@ -11,6 +11,7 @@ every service is alive, reads each process's RSS, then
 2. sends ``--requests`` fuzzed HTTP requests to webapi (`fuzz_requests`: over-long URLs and headers,
    bad methods, garbage bytes, bad encodings, bad bodies, bad parameters), each on its own
    connection, 16 at a time;
+3. leaves ``--idle`` keep-alive connections open and silent until webapi closes them;
 
 and prints the RSS of every process (the router too) at each quarter of each run, the log lines
 seen on the bus ``log`` key and in the processes' output, the HTTP status codes, and how far the
@@ -257,6 +258,38 @@ async def one_request(host: str, port: int, data: bytes, timeout: float) -> str:
             await asyncio.wait_for(writer.wait_closed(), timeout)
 
 
+Connection = tuple[asyncio.StreamReader, asyncio.StreamWriter]
+
+
+async def open_idle(host: str, port: int, count: int) -> list[Connection]:
+    """``count`` keep-alive connections, each after one answered request, left open and silent
+    (what a crashed or malicious client leaves behind)."""
+    connections = []
+    for _ in range(count):
+        reader, writer = await asyncio.open_connection(host, port)
+        writer.write(b"GET /hat/dip/get HTTP/1.1\r\nHost: robot\r\n\r\n")  # keep-alive, the default
+        head = await reader.readuntil(b"\r\n\r\n")
+        length = re.search(rb"Content-Length: (\d+)", head, re.IGNORECASE)
+        await reader.readexactly(int(length.group(1)) if length else 0)
+        connections.append((reader, writer))
+    return connections
+
+
+async def closed_by_server(connections: list[Connection], timeout: float) -> int:
+    """How many of these connections the server has closed within ``timeout`` s (then ours close too)."""
+    deadline = time.monotonic() + timeout
+
+    async def closed(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> bool:
+        try:
+            return await asyncio.wait_for(reader.read(), max(deadline - time.monotonic(), 0.0)) == b""
+        except (TimeoutError, OSError):
+            return False
+        finally:
+            writer.close()
+
+    return sum(await asyncio.gather(*(closed(r, w) for r, w in connections)))
+
+
 async def fuzz_http(host: str, port: int, count: int, seed: int, concurrency: int = 16,
                     timeout: float = 10.0) -> Counter[tuple[str, str, str]]:
     """Send ``count`` fuzzed requests, ``concurrency`` at a time; counts of (kind, route, status)."""
@@ -419,10 +452,34 @@ def moved(a: m.SimState, b: m.SimState) -> float:
 # ---------------------------------------------------------------------- main
 
 
+def idle_connections(stack: Stack, count: int) -> None:
+    """webapi's RSS with ``count`` idle keep-alive connections, and after it closed them."""
+    from icefloe.services.webapi.__main__ import KEEPALIVE_S
+
+    async def run() -> tuple[float, float, int]:
+        idle = await open_idle("127.0.0.1", stack.web_port, count)
+        with_them = stack.rss()["webapi"]
+        closed = await closed_by_server(idle, KEEPALIVE_S + 10.0)
+        await asyncio.sleep(1.0)
+        return with_them, stack.rss()["webapi"], closed
+
+    before = stack.rss()["webapi"]
+    with_them, after, closed = asyncio.run(run())
+    print(f"\n{count} idle keep-alive connections: webapi {before:.1f} MiB before, {with_them:.1f} with them, "
+          f"{after:.1f} after it closed {closed} of them (keep-alive {KEEPALIVE_S:g} s)")
+
+
+BOUND_MIB = 10.0
+"""The bound we hold every process to: RSS at the end of a run at most this much above its start
+(docs/hostile-input.md; measured growth was at most 4.4 MiB)."""
+
+
 def _table(rows: dict[str, list[float]], heads: list[str]) -> None:
-    print(f"  {'process':<18}" + "".join(f"{h:>10}" for h in heads) + f"{'growth':>10}")
+    print(f"  {'process':<18}" + "".join(f"{h:>10}" for h in heads) + f"{'growth':>10}  bound {BOUND_MIB:g} MiB")
     for name, values in rows.items():
-        print(f"  {name:<18}" + "".join(f"{v:10.1f}" for v in values) + f"{values[-1] - values[0]:+10.1f}")
+        growth = values[-1] - values[0]
+        print(f"  {name:<18}" + "".join(f"{v:10.1f}" for v in values) + f"{growth:+10.1f}  "
+              + ("ok" if growth <= BOUND_MIB else "OVER"))
 
 
 def main() -> None:
@@ -430,6 +487,7 @@ def main() -> None:
     p.add_argument("--payloads", type=int, default=100_000)
     p.add_argument("--requests", type=int, default=50_000)
     p.add_argument("--rate", type=float, default=10_000.0, help="bad payloads per second")
+    p.add_argument("--idle", type=int, default=500, help="idle keep-alive connections left open")
     p.add_argument("--seed", type=int, default=1)
     args = p.parse_args()
     stack = Stack(Path(tempfile.mkdtemp(prefix="hostile-")))
@@ -486,6 +544,7 @@ def main() -> None:
             print(f"  tracebacks in the output: {stack.output().count('Traceback')}")
             print(f"  robot moved {moved(after_state, end_state) * 1000:.2f} mm")
             counter.close()
+            idle_connections(stack, args.idle)
         finally:
             session.close()
     finally:

@@ -23,6 +23,7 @@ import hostile_input as hostile  # the bench script is the harness
 from icefloe.runtime import BUS_LOG_BURST, BUS_LOG_RATE
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
+from icefloe.services.webapi.__main__ import KEEPALIVE_S
 
 
 async def wait_listening(port: int, proc, timeout: float = 30.0) -> None:
@@ -83,6 +84,17 @@ async def test_malformed_http_gets_a_400_and_one_short_line(make_robot) -> None:
     assert web.stop() == 0
 
 
+IDLE = 50
+"""Keep-alive connections left open by the whole-stack test, to be closed by webapi."""
+
+
+async def http_phase(port: int) -> tuple[Counter[tuple[str, str, str]], int]:
+    """5,000 fuzzed requests, and how many of `IDLE` idle connections webapi closed meanwhile."""
+    idle = await hostile.open_idle("127.0.0.1", port, IDLE)
+    answers = await hostile.fuzz_http("127.0.0.1", port, 5_000, seed=2)
+    return answers, await hostile.closed_by_server(idle, KEEPALIVE_S + 10.0)
+
+
 @pytest.mark.slow
 def test_the_whole_stack_takes_hostile_input_and_then_drives(tmp_path: Path) -> None:
     stack = hostile.Stack(tmp_path)
@@ -97,7 +109,7 @@ def test_the_whole_stack_takes_hostile_input_and_then_drives(tmp_path: Path) -> 
             lines_before = hostile.output_lines(stack.output())
             start = time.monotonic()
             sent = hostile.flood(session, name, 10_000, seed=1, rate_hz=5_000.0)
-            answers = asyncio.run(hostile.fuzz_http("127.0.0.1", stack.web_port, 5_000, seed=2))
+            answers, closed = asyncio.run(http_phase(stack.web_port))
             time.sleep(2.0)  # the counts of lines not shown come at the end of their second
             took = time.monotonic() - start
             end = hostile.truth(session, name)
@@ -117,6 +129,7 @@ def test_the_whole_stack_takes_hostile_input_and_then_drives(tmp_path: Path) -> 
             statuses = Counter(status for (_, _, status) in answers.elements())
             assert set(statuses) <= {"200", "400", "404", "405"}, statuses
             assert {route for (_, route, status) in answers if status == "200"} <= hostile.HARMLESS
+            assert closed == IDLE, "idle keep-alive connections are closed by the server"
 
             # Good commands work right after: drive on the bus, stop, a query, HTTP.
             twist = keys.key(name, keys.TWIST)
