@@ -142,7 +142,7 @@ class Subscription(Generic[T]):
         self._wake = asyncio.Event()
         self._wake_pending = False
         self._closed = False
-        self._warn = node.limited
+        self._warn, self._kind = node.limited, node.short(key_expr)
         self._sub = node.session.declare_subscriber(key_expr, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -179,7 +179,7 @@ class Subscription(Generic[T]):
                 return self._decode(raw)
             except BadPayload as exc:
                 self.rejected += 1
-                self._warn.warning(raw.key, "dropped: %s", exc)
+                self._warn.warning(self._kind, "dropped: %s", exc)
 
     def pending(self) -> int:
         """Samples queued and not yet read."""
@@ -212,7 +212,7 @@ class Batches(Generic[T]):
         self._decode = decode
         self._deadline: float | None = None
         self._closed = False
-        self._warn = node.limited
+        self._warn, self._kind = node.limited, node.short(key_expr)
         self._sub = node.session.declare_subscriber(key_expr, zenoh.handlers.RingChannel(maxsize))
 
     def __aiter__(self) -> Batches[T]:
@@ -238,7 +238,7 @@ class Batches(Generic[T]):
                 batch.append(self._decode(raw))
             except BadPayload as exc:
                 self.rejected += 1
-                self._warn.warning(raw.key, "dropped: %s", exc)
+                self._warn.warning(self._kind, "dropped: %s", exc)
         return batch
 
     def close(self) -> None:
@@ -301,6 +301,10 @@ class Node:
 
     def key(self, topic: Topic | str) -> str:
         return keys.key(self.robot, topic)
+
+    def short(self, key_expr: str) -> str:
+        """A key without ``icefloe/<this robot>/`` (for counts of log lines: `LimitedLog` kinds)."""
+        return key_expr.removeprefix(keys.key(self.robot, ""))
 
     async def __aenter__(self) -> Node:
         with service_zenoh_pools() if self.one_zenoh_thread else contextlib.nullcontext():
@@ -384,10 +388,10 @@ class Node:
                 reply = await handler(request)
                 query.reply(key_expr, codec.encode(reply), encoding=MSGPACK)
             except BadPayload as exc:
-                self.limited.warning(key_expr, "rejected query: %s", exc)
+                self.limited.warning(topic.name, "rejected query: %s", exc)
                 query.reply_err(printable(str(exc)))
             except Exception as exc:
-                self.limited.error(f"{key_expr} failed", "query %s failed", key_expr, exc_info=exc)
+                self.limited.error(f"{topic.name} failed", "query %s failed", key_expr, exc_info=exc)
                 query.reply_err(printable(f"{key_expr}: {type(exc).__name__}: {exc}"))
             finally:
                 query.drop()
@@ -395,7 +399,7 @@ class Node:
 
         def on_query(query: zenoh.Query) -> None:  # Zenoh thread
             if not slots.acquire(blocking=False):
-                self.limited.warning(key_expr, "refused a query on %s: %d already being answered",
+                self.limited.warning(f"{topic.name} busy", "refused a query on %s: %d already being answered",
                                      key_expr, MAX_QUERIES)
                 query.reply_err(f"{key_expr}: busy ({MAX_QUERIES} queries being answered); ask again later")
                 query.drop()

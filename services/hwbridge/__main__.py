@@ -187,7 +187,7 @@ def fast_stop(node: Node, bridge: Bridge) -> zenoh.Subscriber:
         try:
             codec.decode(sample.payload.to_bytes(), str(sample.encoding), m.Stop, key_expr)
         except BadPayload as exc:
-            node.limited.warning(key_expr, "dropped: %s", exc)
+            node.limited.warning(keys.STOP.name, "dropped: %s", exc)
             return
         bridge.stop(keys.STOP.name)
 

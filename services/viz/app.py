@@ -130,7 +130,7 @@ class Viewer:
                 stream.handler(logger, msg)
             except Exception as exc:  # a message that decodes but cannot be drawn must not stop the viewer
                 key = keys.key(logger.robot, stream.topic)
-                self.node.limited.warning(key, "%s: dropped: %s", key, exc)
+                self.node.limited.warning(f"{logger.robot}/{stream.topic.name}", "%s: dropped: %s", key, exc)
 
     async def discover(self) -> None:
         """Add every robot that holds a liveliness token, now and whenever one appears."""
