@@ -122,10 +122,12 @@ class Launcher:
             child.backoff = min(child.backoff * 2, MAX_BACKOFF)
 
     async def _wait_router(self) -> None:
-        """Give the router a moment to listen so the services' first connect succeeds."""
+        """Give the router a moment to listen so the services' first connect succeeds (or to fail)."""
         host_port = self.config.zenoh.connect[0].split("/", 1)[-1] if self.config.zenoh.connect else ""
         host, _, port = host_port.rpartition(":")
         for _ in range(100):
+            if self._stop.is_set():
+                return
             with contextlib.suppress(OSError):
                 _, writer = await asyncio.open_connection(host or "127.0.0.1", int(port))
                 writer.close()
@@ -140,9 +142,10 @@ class Launcher:
         router, *services = self.children
         tasks = [asyncio.create_task(self._supervise(router))]
         await self._wait_router()
-        tasks += [asyncio.create_task(self._supervise(c)) for c in services]
-        self.say("up", f"robot {self.config.name!r}: {', '.join(c.name for c in self.children)} "
-                 f"(Ctrl-C stops them all)")
+        if not stop.is_set():  # (the router may have refused the config already)
+            tasks += [asyncio.create_task(self._supervise(c)) for c in services]
+            self.say("up", f"robot {self.config.name!r}: {', '.join(c.name for c in self.children)} "
+                     f"(Ctrl-C stops them all)")
         await stop.wait()
         await self.stop()
         for t in tasks:
