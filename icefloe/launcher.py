@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import importlib.util
+import multiprocessing
 import os
 import signal
 import sys
@@ -180,7 +181,7 @@ def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> int:
     if config.board.backend == "hardware" and "sim" in services:
         services.remove("sim")
         notes.append('not starting sim: the board is real (board.backend = "hardware")')
-    found = problems(config, services)
+    found = problems_in_a_child(config, services)
     for problem in found:
         print(f"icefloe: {problem}", file=sys.stderr, flush=True)
     if found:
@@ -193,6 +194,16 @@ def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> int:
 
 
 # ---------------------------------------------------------------------- before anything starts
+
+
+def problems_in_a_child(config: RobotConfig, services: Sequence[str]) -> list[str]:
+    """`problems`, found by a forked process on Linux (the robot): what the checks import (OpenCV
+    for the camera's calibration, 30 MB) does not stay in the launcher, which runs as long as the
+    robot. (Forking is safe here: the launcher has no threads yet.)"""
+    if sys.platform != "linux":
+        return problems(config, services)
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        return pool.apply(problems, (config, list(services)))
 
 
 def problems(config: RobotConfig, services: Sequence[str]) -> list[str]:
