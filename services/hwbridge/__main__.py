@@ -101,7 +101,12 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
     last_dip = -1
     next_loop = time.monotonic()
     while True:
-        s = shared.read_state()
+        try:
+            s = shared.read_state()
+        except TimeoutError:  # the cycle was preempted mid-write (a loaded machine): read again next time
+            node.limited.warning("hw state", "state not readable (the cycle is mid-write); read again")
+            await asyncio.sleep(interval)
+            continue
         if not s["rt_started"]:  # the cycle has not written anything yet
             await asyncio.sleep(interval)
             continue
