@@ -1,6 +1,7 @@
 """Hostile input against the whole simulated robot: memory, log lines and motion.
 
-    .venv/bin/python bench/hostile_input.py [--payloads 100000] [--requests 50000] [--seed 1]
+    .venv/bin/python bench/hostile_input.py [--payloads 100000] [--requests 50000] [--idle 500]
+    .venv/bin/python bench/hostile_input.py --services webapi --payloads 0 --requests 150000 --steps 15
 
 Starts `icefloe up` on the simulated robot (its own port, run dir and web port), waits until
 every service is alive, reads each process's RSS, then
@@ -37,7 +38,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -482,72 +483,78 @@ def _table(rows: dict[str, list[float]], heads: list[str]) -> None:
               + ("ok" if growth <= BOUND_MIB else "OVER"))
 
 
+def _rss_over(stack: Stack, steps: int, run_step: Callable[[int], object]) -> dict[str, list[float]]:
+    """RSS of every process before the first of ``steps`` steps and after each one."""
+    rss: dict[str, list[float]] = {name: [v] for name, v in stack.rss().items()}
+    for i in range(steps):
+        run_step(i)
+        for name, v in stack.rss().items():
+            rss.setdefault(name, [0.0]).append(v)
+    return rss
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--payloads", type=int, default=100_000)
     p.add_argument("--requests", type=int, default=50_000)
-    p.add_argument("--rate", type=float, default=10_000.0, help="bad payloads per second")
     p.add_argument("--idle", type=int, default=500, help="idle keep-alive connections left open")
+    p.add_argument("--rate", type=float, default=10_000.0, help="bad payloads per second, at most")
+    p.add_argument("--steps", type=int, default=4, help="RSS read after each of this many parts of a run")
+    p.add_argument("--services", default=",".join(STACK), help="the services of the robot (default: %(default)s)")
     p.add_argument("--seed", type=int, default=1)
     args = p.parse_args()
-    stack = Stack(Path(tempfile.mkdtemp(prefix="hostile-")))
-    print(f"robot {stack.config.name}, output in {stack.log_path}")
+    services = tuple(args.services.split(","))
+    stack = Stack(Path(tempfile.mkdtemp(prefix="hostile-")), services=services)
+    robot = stack.config.name
+    heads = ["start", *(f"{100 * (i + 1) // args.steps}%" for i in range(args.steps))]
+    print(f"robot {robot} ({', '.join(services)}), output in {stack.log_path}")
     stack.start()
+    session = stack.session()
     try:
-        session = stack.session()
-        try:
-            stack.wait_alive(session)
-            time.sleep(10.0)  # settled: the camera and localizer have seen frames, buffers are warm
-            counter = LogCounter(session, stack.config.name)
-            rss: dict[str, list[float]] = {n: [v] for n, v in stack.rss().items()}
-            start_state = truth(session, stack.config.name)
-            quarters = [args.payloads // 4] * 4
+        stack.wait_alive(session)
+        time.sleep(10.0)  # settled: the camera and localizer have seen frames, buffers are warm
+        counter = LogCounter(session, robot)
+        state = truth(session, robot) if "sim" in services else None
+
+        def report(lines_before: Counter[str]) -> Counter[str]:
+            time.sleep(3.0)  # the last queries time out, queues drain, counts of lines come
+            nonlocal state
+            on_bus, output = counter.take(), output_lines(stack.output())
+            print(f"  log lines on the bus: {sum(on_bus.values())} ({dict(on_bus)})")
+            print(f"  lines of output: {sum((output - lines_before).values())} ({dict(output - lines_before)})")
+            print(f"  tracebacks in the output so far: {stack.output().count('Traceback')}")
+            if state is not None:
+                now = truth(session, robot)
+                print(f"  robot moved {moved(state, now) * 1000:.2f} mm; duty {now.duty_left}, {now.duty_right}")
+                state = now
+            return output
+
+        lines = output_lines(stack.output())
+        if args.payloads:
             t0 = time.monotonic()
             sent: Counter[str] = Counter()
-            for i, n in enumerate(quarters):
-                sent += flood(session, stack.config.name, n, args.seed + i, args.rate)
-                for name, v in stack.rss().items():
-                    rss.setdefault(name, [0.0]).append(v)
-            flood_s = time.monotonic() - t0
-            time.sleep(3.0)  # the last queries time out, queues drain
-            bus_flood = counter.take()
-            out_flood = output_lines(stack.output())
-            after_state = truth(session, stack.config.name)
-            print(f"\n{args.payloads} bad payloads in {flood_s:.1f} s over {len(sent)} keys "
+            rss = _rss_over(stack, args.steps, lambda i: sent.update(
+                flood(session, robot, args.payloads // args.steps, args.seed + i, args.rate)))
+            print(f"\n{args.payloads} bad payloads in {time.monotonic() - t0:.1f} s over {len(sent)} keys "
                   f"(puts and queries); RSS, MiB:")
-            _table(rss, ["start", "25%", "50%", "75%", "100%"])
-            print(f"  log lines on the bus: {sum(bus_flood.values())} ({dict(bus_flood)})")
-            print(f"  lines of output: {sum(out_flood.values())} ({dict(out_flood)})")
-            print(f"  robot moved {moved(start_state, after_state) * 1000:.2f} mm; "
-                  f"duty {after_state.duty_left}, {after_state.duty_right}")
-
-            web: dict[str, list[float]] = {n: [v[-1]] for n, v in rss.items()}
-            statuses: Counter[tuple[str, str, str]] = Counter()
+            _table(rss, heads)
+            lines = report(lines)
+        if args.requests:
             t0 = time.monotonic()
-            for i in range(4):
-                statuses += asyncio.run(fuzz_http("127.0.0.1", stack.web_port, args.requests // 4,
-                                                  args.seed + 10 + i))
-                for name, v in stack.rss().items():
-                    web.setdefault(name, [0.0]).append(v)
-            http_s = time.monotonic() - t0
-            time.sleep(2.0)
-            bus_http = counter.take()
-            out_http = output_lines(stack.output()) - out_flood
-            end_state = truth(session, stack.config.name)
-            print(f"\n{args.requests} fuzzed HTTP requests in {http_s:.1f} s; RSS, MiB:")
-            _table(web, ["start", "25%", "50%", "75%", "100%"])
-            codes = Counter(status for (_, _, status) in statuses.elements())
+            answers: Counter[tuple[str, str, str]] = Counter()
+            rss = _rss_over(stack, args.steps, lambda i: answers.update(asyncio.run(
+                fuzz_http("127.0.0.1", stack.web_port, args.requests // args.steps, args.seed + 10 + i))))
+            print(f"\n{args.requests} fuzzed HTTP requests in {time.monotonic() - t0:.1f} s; RSS, MiB:")
+            _table(rss, heads)
+            codes = Counter(status for (_, _, status) in answers.elements())
             print(f"  answers: {dict(sorted(codes.items()))}, 200 only from "
-                  f"{sorted({route for (_, route, status) in statuses if status == '200'})}")
-            print(f"  log lines on the bus: {sum(bus_http.values())} ({dict(bus_http)})")
-            print(f"  lines of output: {sum(out_http.values())} ({dict(out_http)})")
-            print(f"  tracebacks in the output: {stack.output().count('Traceback')}")
-            print(f"  robot moved {moved(after_state, end_state) * 1000:.2f} mm")
-            counter.close()
+                  f"{sorted({route for (_, route, status) in answers if status == '200'})}")
+            lines = report(lines)
+        if args.idle:
             idle_connections(stack, args.idle)
-        finally:
-            session.close()
+        counter.close()
     finally:
+        session.close()
         code = stack.stop()
         print(f"\nicefloe up exited with {code}; output in {stack.log_path}")
 
