@@ -1,6 +1,7 @@
 """Lab scale: one lab router, N simulated robots, laptops that drive two of them.
 
     .venv/bin/python bench/lab_scale.py [--robots 10] [--seconds 10] [--cycle-hz 250] [--odom-hz 25]
+    .venv/bin/python bench/lab_scale.py --router-load [--robots 10,30,60,100] [--seconds 10]
 
 "A lab is a room with twenty robots and forty laptops on one Wi-Fi." This script
 builds that room on one machine, with real processes and real Zenoh sessions
@@ -397,6 +398,10 @@ def print_report(report: Report) -> None:
 
 
 def main() -> int:
+    if "--router-load" in sys.argv:
+        import lab_load
+
+        return lab_load.main([a for a in sys.argv[1:] if a != "--router-load"])
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--robots", type=int, default=10)
     parser.add_argument("--seconds", type=float, default=10.0, help="measuring window, s")

@@ -95,3 +95,45 @@ def test_the_bench_fails_a_robot_that_did_not_go_as_far_as_asked_and_any_crash()
     crashed = a_report(crashed=["r1/hwbridge exited (1):\nTimeoutError"]).failures()
     assert crashed == ["crashed: r1/hwbridge exited (1):\nTimeoutError"]
     assert a_report(restarted=["r1: hwbridge's real-time cycle [10] is now [11]"]).failures() != []
+
+
+# ---------------------------------------------------------------------------- the router load mode
+
+
+def test_router_load_stand_ins_carry_a_robots_keys_at_its_configured_rates_with_real_sized_payloads() -> None:
+    import lab_load
+
+    from icefloe import config as config_mod
+    from icefloe.schemas import codec, keys
+    from icefloe.schemas import messages as m
+
+    config = config_mod.load(None)
+    flows = {f.topic.name: f for f in lab_load.robot_flows(config)}
+    assert flows["hw/wheels"].rate_hz == config.hwbridge.wheels_rate_hz
+    assert flows["odom/pose"].rate_hz == config.odometry.rate_hz
+    assert flows["camera/landmarks"].rate_hz == config.camera.fps
+    assert flows["camera/image"].rate_hz == config.camera.image_rate_hz
+    for name, flow in flows.items():  # each payload is a message of its key's type, as services send it
+        topic = keys.TABLE[name]
+        assert topic.kind == "out" and flow.service in lab_load.ROBOT_SIDE
+        codec.decode(flow.payload, codec.MSGPACK, topic.type)
+    image = codec.decode(flows["camera/image"].payload, codec.MSGPACK, m.Image)
+    assert image.data[:2] == b"\xff\xd8" and (image.width, image.height) == (config.camera.image_width,
+                                                                              config.camera.image_height)
+    assert len(codec.decode(flows["camera/landmarks"].payload, codec.MSGPACK, m.Landmarks).landmarks) >= 2
+    # Everything a robot publishes has a reader: its own services or the laptop's viewer.
+    assert all(lab_load.subscribers(keys.TABLE[name]) >= 1 for name in flows)
+
+
+@pytest.mark.slow
+def test_router_load_measures_a_lab_router_with_two_stand_in_robots(tmp_path: Path) -> None:
+    import lab_load
+
+    from icefloe import config as config_mod
+
+    flows = lab_load.robot_flows(config_mod.load(None))
+    row = lab_load.measure(2, 2.0, flows, workers=1, root=tmp_path)
+    assert row.sessions == 2 * (len(lab_load.ROBOT_SIDE) + 1) + 2
+    assert row.probes > 100, row                     # the probe's hw/wheels came through, 100 Hz
+    assert row.delivered >= 0.95, row                # a robot's traffic reached its watcher
+    assert row.router_cpu > 0 and row.router_rss_mb > 0, row
