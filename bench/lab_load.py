@@ -193,11 +193,11 @@ class Robots:
     def __init__(self, endpoint: str, robots: Sequence[StandIn], flows: Sequence[Flow]) -> None:
         self.sessions: list[zenoh.Session] = []
         self._keep: list[object] = []  # declarations live as long as we hold them
-        self._flows: list[tuple[zenoh.Publisher, bytes, float, int]] = []
+        self._flows: list[tuple[zenoh.Publisher, zenoh.ZBytes, float, int]] = []
         """(publisher, payload, period, index of its robot)."""
         self.puts = [0] * len(robots)
         """Puts so far, per robot."""
-        twist = codec.encode(m.Twist(v=0.15, w=0.0))
+        twist = zenoh.ZBytes(codec.encode(m.Twist(v=0.15, w=0.0)))  # made once: a put of ZBytes copies nothing
         for r, robot in enumerate(robots):
             for service, (subs, queryables) in ROBOT_SIDE.items():
                 session = self._open(endpoint, robot)
@@ -207,7 +207,7 @@ class Robots:
                 self._keep += [session.declare_queryable(keys.key(robot.robot, t), zenoh.handlers.RingChannel(1))
                                for t in queryables]
                 self._flows += [(session.declare_publisher(keys.key(robot.robot, f.topic), encoding=MSGPACK),
-                                 f.payload, 1.0 / f.rate_hz, r) for f in flows if f.service == service]
+                                 zenoh.ZBytes(f.payload), 1.0 / f.rate_hz, r) for f in flows if f.service == service]
             laptop = self._open(endpoint, robot)
             self._keep += [laptop.declare_subscriber(keys.key(robot.robot, t), zenoh.handlers.RingChannel(1))
                            for t in LAPTOP_WATCHES]
@@ -250,11 +250,11 @@ NICE = 10
 probe get the CPU first (the "offered" column says whether the stand-ins still made every put)."""
 
 
-def worker(endpoint: str, robots: list[StandIn], flows: list[Flow], conn: Connection) -> None:
+def worker(endpoint: str, robots: list[StandIn], flows: list[Flow], conn: Connection, nice: int) -> None:
     """A stand-in process: open its robots' sessions, say "ready", publish from "go" until "stop".
     Each "mark" takes (time, puts per robot); the answer at the end is (marks, planned puts per s,
     puts per robot in all)."""
-    os.nice(NICE)
+    os.nice(nice)
     group = Robots(endpoint, robots, flows)
     stop = threading.Event()
     marks: list[tuple[float, list[int]]] = []
@@ -281,6 +281,8 @@ class Probe:
 
     def __init__(self, endpoint: str, probe: StandIn, audited: str | None) -> None:
         self.latencies: list[float] = []
+        self.heard = 0
+        """Probe samples that came back, in all."""
         self.audit: dict[str, int] = defaultdict(int)
         self.measuring = False
         self._pub_session = zenoh.open(session_config(endpoint, probe.user, probe.password))
@@ -292,6 +294,7 @@ class Probe:
 
     def _on_wheels(self, sample: zenoh.Sample) -> None:
         received = time.time_ns()
+        self.heard += 1
         if self.measuring:
             stamp = codec.decode(sample.payload.to_bytes(), codec.MSGPACK, m.Wheels).stamp
             self.latencies.append((received - stamp) * 1e-9)
@@ -339,6 +342,8 @@ class Row:
     """Puts the stand-ins made / puts planned over the window."""
     generators_cpu: float
     machine_pct: float
+    warm_up_s: float
+    """From "go" until the probe and the audited robot both came through the router."""
 
 
 def rss_mb(pid: int) -> float:
@@ -348,7 +353,7 @@ def rss_mb(pid: int) -> float:
     return math.nan
 
 
-def measure(n: int, seconds: float, flows: list[Flow], workers: int, root: Path) -> Row:
+def measure(n: int, seconds: float, flows: list[Flow], workers: int, root: Path, nice: int = NICE) -> Row:
     """A lab router for the probe and ``n`` stand-in robots; the window's figures."""
     ctx = mp.get_context("spawn")  # no fork of a process that runs Zenoh's threads
     with Lab(root, n + 1) as lab:
@@ -360,7 +365,8 @@ def measure(n: int, seconds: float, flows: list[Flow], workers: int, root: Path)
         procs, conns = [], []
         for k in range(min(workers, n)):
             parent, child = ctx.Pipe()
-            proc = ctx.Process(target=worker, args=(lab.endpoint, robots[k::workers], flows, child), daemon=True)
+            proc = ctx.Process(target=worker, args=(lab.endpoint, robots[k::workers], flows, child, nice),
+                               daemon=True)
             proc.start()
             procs.append(proc)
             conns.append(parent)
@@ -397,12 +403,22 @@ def measure(n: int, seconds: float, flows: list[Flow], workers: int, root: Path)
                probes=len(probe.latencies),
                delivered=audited / audited_puts if audited_puts else math.nan,
                kept_up=made / planned if planned else math.nan, generators_cpu=row["generators"],
-               machine_pct=row["machine"])
+               machine_pct=row["machine"], warm_up_s=row["warm_up"])
+
+
+WARM_UP_S = 120.0
+"""At most this long for the probe and the audited robot to come through the router, before the window."""
 
 
 async def _window(lab: Lab, probe: Probe, procs: list[mp.Process], conns: list[Connection],
                   seconds: float) -> dict[str, float]:
-    await probe.run(2.0)  # warm up: every declaration known, queues settled
+    # Warm up until the router has taken every declaration: the probe and the audited robot come through.
+    start = time.monotonic()
+    while probe.heard < 100 or (len(procs) and sum(probe.audit.values()) < 100):
+        if time.monotonic() - start > WARM_UP_S:
+            raise RuntimeError(f"nothing through the lab router {WARM_UP_S:.0f} s after the stand-ins started")
+        await probe.run(0.5)
+    await probe.run(1.0)
     meter = CpuMeter({"router": [lab.router.pid], "generators": [p.pid for p in procs if p.pid]})
     meter.start()
     probe.measuring = True
@@ -418,7 +434,7 @@ async def _window(lab: Lab, probe: Probe, procs: list[mp.Process], conns: list[C
     if not lab.router.alive():
         raise RuntimeError(f"the lab router died:\n{lab.router.tail()}")
     return {"router": cpu["router"], "generators": cpu["generators"], "machine": machine,
-            "rss": rss_mb(lab.router.pid), "window": window}
+            "rss": rss_mb(lab.router.pid), "window": window, "warm_up": t0 - start}
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -434,35 +450,44 @@ REFERENCES = {10: 12.8, 30: 30.8, 60: 37.5}
 """Issue #19: the lab router's CPU (% of one core) with N simulated robots at full rates, 16 cores."""
 
 
-def print_table(rows: list[Row], flows: list[Flow], workers: int) -> None:
+def print_table(rows: list[Row], flows: list[Flow], workers: int, nice: int) -> None:
     config = config_mod.load(None)
     print(f"per robot: {len(ROBOT_SIDE)} service sessions + 1 laptop, all with the robot's credentials, "
           f"direct on the lab router")
     print("  puts per second: " + ", ".join(f"{f.topic.name} {f.rate_hz:g} ({len(f.payload)} B)" for f in flows)
           + f", cmd/twist {TWIST_HZ:g} (laptop)")
-    print(f"  rates from the robot config {config.source}; stand-ins in {workers} processes\n")
+    print(f"  rates from the robot config {config.source}; stand-ins in {workers} processes at nice {nice}\n")
     base = rows[0]
-    head = (f"{'robots':>6} {'sessions':>8} {'msg/s in':>9} {'msg/s out':>9} {'router CPU %':>12} {'/robot':>7} "
-            f"{'RSS MB':>7} {'/robot':>7} {'latency p50':>11} {'p99 ms':>7} {'+p50/robot':>10} {'delivered':>9} "
-            f"{'offered':>8} {'stand-ins CPU':>13} {'machine':>8} {'ref CPU %':>9}")
-    print(head)
+    print(f"{'robots':>6} {'sessions':>8} {'msg/s in':>9} {'msg/s out':>9} {'router CPU %':>12} {'/robot':>7} "
+          f"{'/1k out':>7} {'RSS MB':>7} {'/robot':>7} {'ref CPU %':>9}")
     for r in rows:
+        out = r.offered_out * r.kept_up if r.robots else 0.0
         per_cpu = (r.router_cpu - base.router_cpu) / r.robots if r.robots else math.nan
+        per_k = (r.router_cpu - base.router_cpu) / out * 1e3 if out else math.nan
         per_rss = (r.router_rss_mb - base.router_rss_mb) / r.robots if r.robots else math.nan
-        added = (r.latency_p50_ms - base.latency_p50_ms) / r.robots * 1e3 if r.robots else math.nan
         ref = REFERENCES.get(r.robots)
-        print(f"{r.robots:>6} {r.sessions:>8} {r.offered_in:>9.0f} {r.offered_out:>9.0f} {r.router_cpu:>12.1f} "
-              f"{per_cpu:>7.2f} {r.router_rss_mb:>7.0f} {per_rss:>7.2f} {r.latency_p50_ms:>11.2f} "
-              f"{r.latency_p99_ms:>7.2f} {added:>7.1f} µs {_share(r.delivered):>9} {_share(r.kept_up):>8} "
-              f"{r.generators_cpu:>12.0f}% {r.machine_pct:>7.0f}% {f'{ref:.1f}' if ref else '':>9}")
-    print("\ncolumns: msg/s in = puts offered by the stand-ins; out = deliveries they ask of the router; router CPU "
-          "% of one core (/robot: above the 0-robot row); RSS after the window; latency: the probe robot's hw/wheels "
-          "to its laptop through the router (+p50/robot: above the 0-robot row); delivered: one stand-in robot's "
-          "puts that reached a watcher; offered: puts made / planned; stand-ins CPU % of one core; machine: busy % "
-          f"of all {os.cpu_count()} CPUs, everyone's work; ref: issue #19's lab router CPU with simulated robots "
-          "at full rates on 16 cores")
-    if rows[-1].robots:
-        print(f"router memory idle (no session): {rows[0].router_idle_rss_mb:.0f} MB")
+        print(f"{r.robots:>6} {r.sessions:>8} {r.offered_in * _ok(r.kept_up):>9.0f} {out:>9.0f} "
+              f"{r.router_cpu:>12.1f} {per_cpu:>7.2f} {per_k:>7.2f} {r.router_rss_mb:>7.0f} {per_rss:>7.2f} "
+              f"{f'{ref:.1f}' if ref else '':>9}")
+    print(f"\n{'robots':>6} {'probe p50 ms':>12} {'p99 ms':>7} {'+p50/robot':>11} {'delivered':>9} "
+          f"{'offered':>8} {'stand-ins CPU %':>15} {'machine busy':>12} {'through after':>13}")
+    for r in rows:
+        added = (r.latency_p50_ms - base.latency_p50_ms) / r.robots * 1e3 if r.robots else math.nan
+        print(f"{r.robots:>6} {r.latency_p50_ms:>12.2f} {r.latency_p99_ms:>7.2f} {added:>8.1f} µs "
+              f"{_share(r.delivered):>9} {_share(r.kept_up):>8} {r.generators_cpu:>15.0f} {r.machine_pct:>11.0f}% "
+              f"{r.warm_up_s:>11.1f} s")
+    print("\nmsg/s in: puts the stand-ins made; out: deliveries those ask of the router (each put times its "
+          "subscribers); router CPU in % of one core, /robot above the 0-robot row, /1k out per 1000 deliveries/s; "
+          "RSS after the window; ref: issue #19's lab router with simulated robots at full rates, 16 cores.\n"
+          "probe: a robot's hw/wheels at 100 Hz to its laptop through the router, stamp to callback (+p50/robot: "
+          "above the 0-robot row); delivered: one stand-in robot's puts that reached a watcher; offered: puts made "
+          f"/ planned; machine busy: all {os.cpu_count()} CPUs, everyone's work; through after: from the start of "
+          "the stand-ins' puts until the probe and the audited robot came through. "
+          f"Router memory with no session: {rows[0].router_idle_rss_mb:.0f} MB.")
+
+
+def _ok(x: float) -> float:
+    return 1.0 if math.isnan(x) else x
 
 
 def _share(x: float) -> str:
@@ -474,6 +499,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--robots", default="10,30,60,100", help="comma-separated robot counts (0 is always run)")
     parser.add_argument("--seconds", type=float, default=10.0, help="measuring window per count, s")
     parser.add_argument("--workers", type=int, default=2, help="processes the stand-ins run in")
+    parser.add_argument("--nice", type=int, default=NICE, help=f"niceness of the stand-ins (default {NICE})")
     args = parser.parse_args(argv)
     counts = [0, *sorted({int(n) for n in args.robots.split(",") if int(n) > 0})]
     print(f"$ {' '.join([Path(sys.executable).name, *sys.argv])}")
@@ -481,12 +507,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = []
     for n in counts:
         with tempfile.TemporaryDirectory() as tmp:
-            rows.append(measure(n, args.seconds, flows, args.workers, Path(tmp)))
+            rows.append(measure(n, args.seconds, flows, args.workers, Path(tmp), args.nice))
         r = rows[-1]
         print(f"  {n} robots: router {r.router_cpu:.1f} % CPU, {r.router_rss_mb:.0f} MB, probe p50 "
               f"{r.latency_p50_ms:.2f} ms", flush=True)
     print()
-    print_table(rows, flows, args.workers)
+    print_table(rows, flows, args.workers, args.nice)
     failures = [f"{r.robots} robots: only {_share(r.delivered)} of a robot's traffic reached its watcher"
                 for r in rows if r.robots and r.delivered < 0.95]
     failures += [f"{r.robots} robots: no probe got through" for r in rows if not r.probes]
