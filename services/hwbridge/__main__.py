@@ -112,7 +112,7 @@ def stop_board(config: RobotConfig) -> str:
     board = make_board(config, lambda _kind, _text: None)
     try:
         board.open(time.monotonic_ns())
-    except BoardError as exc:
+    except (BoardError, OSError) as exc:
         return f"could not tell the board to stop ({exc})"
     board.stop()
     board.close()
