@@ -70,7 +70,7 @@ def a_report(**changes: object) -> lab_scale.Report:
     """A report of three robots that passes every check, with ``changes`` to one driven robot or the run."""
     def robot(name: str, role: str, moved: float, asked: float, heard: int) -> lab_scale.RobotResult:
         return lab_scale.RobotResult(name=name, role=role, configured_hz=25.0, poses=100, rate_hz=25.0,
-                                     moved_m=moved, asked_m=asked, sim_lost_s=0.0, twists_sent=40, twists_heard=heard,
+                                     moved_m=moved, asked_m=asked, sim_pace=1.0, twists_sent=40, twists_heard=heard,
                                      cycle_hz=250.0, overruns=0, stalled_reads=0)
 
     robots = {"r0": robot("r0", "own credentials", 0.660, 0.661, 40),
@@ -92,6 +92,9 @@ def test_the_bench_fails_a_robot_that_did_not_go_as_far_as_asked_and_any_crash()
     assert a_report(moved_m=0.661 * 1.06).failures() != []          # too far is as wrong as too short
     assert a_report(moved_m=0.661 * 1.04).failures() == []
     assert a_report(moved_m=float("nan")).failures() == ["r0: no sim/truth before and after the window"]
+    starved = a_report(sim_pace=0.45).failures()                     # a starved simulator: no verdict on distance
+    assert starved == ["r0: its simulator ran at 45% of real time (this machine is overloaded): "
+                       "the distance check means nothing"]
     crashed = a_report(crashed=["r1/hwbridge exited (1):\nTimeoutError"]).failures()
     assert crashed == ["crashed: r1/hwbridge exited (1):\nTimeoutError"]
     assert a_report(restarted=["r1: hwbridge's real-time cycle [10] is now [11]"]).failures() != []
