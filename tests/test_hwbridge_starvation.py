@@ -29,6 +29,8 @@ from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.hwbridge.shm import OFF_CMD_SEQ, OFF_STATE_SEQ, READ_TRIES, STATE_FIELDS, Shared, block_name
+from icefloe.wire import penguinpi as ppi
+from icefloe.wire.penguinpi import Address, MultiOp
 
 HOLD_S = 2.0
 """How long the cycle stays stopped mid-write: four deadman periods."""
@@ -183,6 +185,34 @@ async def test_a_cycle_held_mid_write_and_a_cpu_hog_crash_nothing(robot) -> None
 
 
 @pytest.mark.slow
+async def test_a_dead_cycle_stops_the_penguinpi_and_hwbridge_exits(robot) -> None:
+    async with robot.node() as node:
+        _sim, hw = await start_stack(robot, node)
+        shared = Shared.attach(block_name(robot.name))
+        try:
+            rt_pid = await rt_pid_of(shared)
+        finally:
+            shared.close()
+        async with driving(node, v=0.2):                 # the student goes on sending twists
+            await asyncio.sleep(1.0)
+            assert (await sim_state(node)).speed_left > 0.1
+            os.kill(rt_pid, signal.SIGKILL)              # the real-time process only
+            await wait_for(lambda: not hw.alive(), timeout=15)
+            # The PenguinPi keeps its last demand for ever unless told: the bus process told it
+            # (MULTI_ALL_STOP), and nothing drives it after that.
+            deadline = time.monotonic() + 5.0
+            while abs((state := await sim_state(node)).speed_left) > 0.005 or abs(state.speed_right) > 0.005:
+                assert time.monotonic() < deadline, state
+                await asyncio.sleep(0.05)
+            await asyncio.sleep(0.5)
+            still = await sim_state(node)
+        assert hw.popen.returncode == 4, hw.output
+        assert "real-time process exited with status -9; the board was told to stop" in hw.output
+        assert still.last_frame == ppi.encode_frame(Address.AD_MULTI, MultiOp.MULTI_ALL_STOP), still
+        assert abs(still.x - state.x) < 0.005, (state, still)
+
+
+@pytest.mark.slow
 def test_a_dead_cycle_stops_the_wheels_and_icefloe_up_restarts_hwbridge(tmp_path: Path) -> None:
     cfg_path = robot_config(tmp_path, "rtgone", 'services = ["sim", "hwbridge"]')
     cfg = config_mod.load(cfg_path)
@@ -205,9 +235,6 @@ def test_a_dead_cycle_stops_the_wheels_and_icefloe_up_restarts_hwbridge(tmp_path
                 assert moving.speed_left > 0.1, moving
                 os.kill(rt_pid, signal.SIGKILL)          # the real-time process only
                 await wait_for(lambda: "exited with code 4; restarting" in log.read_text(), timeout=15)
-                # Nothing drove the board after the cycle died but hwbridge's stop.
-                stopped = await sim_state(node)
-                assert (stopped.duty_left, stopped.duty_right) == (0.0, 0.0), stopped
                 # icefloe up started hwbridge again, with a new cycle: the twists drive again.
                 await wait_for(lambda: log.read_text().count("board link up") >= 2, timeout=30)
                 await asyncio.sleep(1.0)
