@@ -92,9 +92,7 @@ def test_the_bench_fails_a_robot_that_did_not_go_as_far_as_asked_and_any_crash()
     assert a_report(moved_m=0.661 * 1.06).failures() != []          # too far is as wrong as too short
     assert a_report(moved_m=0.661 * 1.04).failures() == []
     assert a_report(moved_m=float("nan")).failures() == ["r0: no sim/truth before and after the window"]
-    starved = a_report(sim_pace=0.45).failures()                     # a starved simulator: no verdict on distance
-    assert starved == ["r0: its simulator ran at 45% of real time (this machine is overloaded): "
-                       "the distance check means nothing"]
+
     crashed = a_report(crashed=["r1/hwbridge exited (1):\nTimeoutError"]).failures()
     assert crashed == ["crashed: r1/hwbridge exited (1):\nTimeoutError"]
     assert a_report(restarted=["r1: hwbridge's real-time cycle [10] is now [11]"]).failures() != []
