@@ -164,6 +164,30 @@ def subscribers(topic: keys.Topic) -> int:
     return sum(topic in subs for subs, _ in ROBOT_SIDE.values()) + (topic in LAPTOP_WATCHES)
 
 
+@dataclass(frozen=True)
+class Crossing:
+    """What one robot (its services and its laptop) asks of the lab router, per second."""
+
+    puts: float
+    """Messages that reach the router."""
+    deliveries: float
+    """Messages the router sends on (each put times its subscribers)."""
+    bytes_in: float
+    """Payload bytes that reach the router (Zenoh adds a few bytes a message; batches share headers)."""
+    bytes_out: float
+    sessions: int
+
+
+def crossing(flows: Sequence[Flow]) -> Crossing:
+    """Every service on the lab router: all of a robot's traffic goes through it."""
+    twist = len(codec.encode(m.Twist(v=0.15, w=0.0)))
+    streams = [(f.rate_hz, len(f.payload), subscribers(f.topic)) for f in flows]
+    streams.append((TWIST_HZ, twist, subscribers(keys.TWIST)))
+    return Crossing(puts=sum(r for r, _, _ in streams), deliveries=sum(r * k for r, _, k in streams),
+                    bytes_in=sum(r * b for r, b, _ in streams), bytes_out=sum(r * b * k for r, b, k in streams),
+                    sessions=len(ROBOT_SIDE) + 1)
+
+
 # ---------------------------------------------------------------------------- the stand-ins
 
 
@@ -325,10 +349,7 @@ class Probe:
 class Row:
     robots: int
     sessions: int
-    offered_in: float
-    """Messages per second the robots and laptops put (planned)."""
-    offered_out: float
-    """Messages per second the router must deliver (each put times its subscribers)."""
+    per_robot: Crossing
     router_cpu: float
     """% of one core over the window."""
     router_rss_mb: float
@@ -385,6 +406,9 @@ def measure(n: int, seconds: float, flows: list[Flow], workers: int, root: Path,
             time.sleep(1.0)  # the last puts reach the watcher
             probe.close()
         finally:
+            for conn in conns:  # also when something failed: the stand-ins stop and exit
+                with contextlib.suppress(OSError):
+                    conn.send("stop")
             for proc in procs:
                 proc.join(30)
                 if proc.is_alive():
@@ -393,11 +417,10 @@ def measure(n: int, seconds: float, flows: list[Flow], workers: int, root: Path,
         made = sum(sum(b) - sum(a) for ((_, a), (_, b)), _, _ in results)
         planned = sum(rate * (tb - ta) for ((ta, _), (tb, _)), rate, _ in results)
         audited_puts = results[0][2][0] if results else 0  # worker 0's first robot, from "go" to "stop"
-    per_robot_puts = sum(f.rate_hz for f in flows) + TWIST_HZ
-    per_robot_out = sum(f.rate_hz * subscribers(f.topic) for f in flows) + TWIST_HZ * subscribers(keys.TWIST)
+    per_robot = crossing(flows)
     audited = sum(probe.audit.values())
-    return Row(robots=n, sessions=n * (len(ROBOT_SIDE) + 1) + 2, offered_in=n * per_robot_puts,
-               offered_out=n * per_robot_out, router_cpu=row["router"], router_rss_mb=row["rss"],
+    return Row(robots=n, sessions=n * per_robot.sessions + 2, per_robot=per_robot,
+               router_cpu=row["router"], router_rss_mb=row["rss"],
                router_idle_rss_mb=idle_rss,
                latency_p50_ms=_pct(probe.latencies, 0.5) * 1e3, latency_p99_ms=_pct(probe.latencies, 0.99) * 1e3,
                probes=len(probe.latencies),
@@ -453,22 +476,26 @@ REFERENCES = {10: 12.8, 30: 30.8, 60: 37.5}
 def print_table(rows: list[Row], flows: list[Flow], workers: int, nice: int) -> None:
     config = config_mod.load(None)
     print(f"per robot: {len(ROBOT_SIDE)} service sessions + 1 laptop, all with the robot's credentials, "
-          f"direct on the lab router")
+          "direct on the lab router")
     print("  puts per second: " + ", ".join(f"{f.topic.name} {f.rate_hz:g} ({len(f.payload)} B)" for f in flows)
           + f", cmd/twist {TWIST_HZ:g} (laptop)")
+    c = rows[-1].per_robot
+    print(f"  through the lab router per robot: {c.puts:.0f} msg/s in, {c.deliveries:.0f} out; payloads "
+          f"{c.bytes_in / 1e3:.0f} kB/s in, {c.bytes_out / 1e3:.0f} kB/s out")
     print(f"  rates from the robot config {config.source}; stand-ins in {workers} processes at nice {nice}\n")
     base = rows[0]
-    print(f"{'robots':>6} {'sessions':>8} {'msg/s in':>9} {'msg/s out':>9} {'router CPU %':>12} {'/robot':>7} "
-          f"{'/1k out':>7} {'RSS MB':>7} {'/robot':>7} {'ref CPU %':>9}")
+    print(f"{'robots':>6} {'sessions':>8} {'msg/s in':>9} {'msg/s out':>9} {'kB/s out':>8} {'router CPU %':>12} "
+          f"{'/robot':>7} {'/1k out':>7} {'RSS MB':>7} {'/robot':>7} {'ref CPU %':>9}")
     for r in rows:
-        out = r.offered_out * r.kept_up if r.robots else 0.0
+        made = r.robots * _ok(r.kept_up)  # robots' worth of traffic the stand-ins really offered
+        out = made * r.per_robot.deliveries
         per_cpu = (r.router_cpu - base.router_cpu) / r.robots if r.robots else math.nan
         per_k = (r.router_cpu - base.router_cpu) / out * 1e3 if out else math.nan
         per_rss = (r.router_rss_mb - base.router_rss_mb) / r.robots if r.robots else math.nan
         ref = REFERENCES.get(r.robots)
-        print(f"{r.robots:>6} {r.sessions:>8} {r.offered_in * _ok(r.kept_up):>9.0f} {out:>9.0f} "
-              f"{r.router_cpu:>12.1f} {per_cpu:>7.2f} {per_k:>7.2f} {r.router_rss_mb:>7.0f} {per_rss:>7.2f} "
-              f"{f'{ref:.1f}' if ref else '':>9}")
+        print(f"{r.robots:>6} {r.sessions:>8} {made * r.per_robot.puts:>9.0f} {out:>9.0f} "
+              f"{made * r.per_robot.bytes_out / 1e3:>8.0f} {r.router_cpu:>12.1f} {per_cpu:>7.2f} {per_k:>7.2f} "
+              f"{r.router_rss_mb:>7.0f} {per_rss:>7.2f} {f'{ref:.1f}' if ref else '':>9}")
     print(f"\n{'robots':>6} {'probe p50 ms':>12} {'p99 ms':>7} {'+p50/robot':>11} {'delivered':>9} "
           f"{'offered':>8} {'stand-ins CPU %':>15} {'machine busy':>12} {'through after':>13}")
     for r in rows:
@@ -476,9 +503,10 @@ def print_table(rows: list[Row], flows: list[Flow], workers: int, nice: int) -> 
         print(f"{r.robots:>6} {r.latency_p50_ms:>12.2f} {r.latency_p99_ms:>7.2f} {added:>8.1f} µs "
               f"{_share(r.delivered):>9} {_share(r.kept_up):>8} {r.generators_cpu:>15.0f} {r.machine_pct:>11.0f}% "
               f"{r.warm_up_s:>11.1f} s")
-    print("\nmsg/s in: puts the stand-ins made; out: deliveries those ask of the router (each put times its "
-          "subscribers); router CPU in % of one core, /robot above the 0-robot row, /1k out per 1000 deliveries/s; "
-          "RSS after the window; ref: issue #19's lab router with simulated robots at full rates, 16 cores.\n"
+    print("\nmsg/s in: puts that reached the router (as the stand-ins made them); out: deliveries those ask of the "
+          "router (each put times its subscribers); kB/s out: their payloads; router CPU in % of one core, /robot "
+          "above the 0-robot row, /1k out per 1000 deliveries/s; RSS after the window; ref: issue #19's lab router "
+          "with simulated robots at full rates, 16 cores.\n"
           "probe: a robot's hw/wheels at 100 Hz to its laptop through the router, stamp to callback (+p50/robot: "
           "above the 0-robot row); delivered: one stand-in robot's puts that reached a watcher; offered: puts made "
           f"/ planned; machine busy: all {os.cpu_count()} CPUs, everyone's work; through after: from the start of "
