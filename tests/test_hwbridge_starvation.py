@@ -96,13 +96,26 @@ def cpu_hog(pid: int, hogs: int = 3) -> Iterator[None]:
                 os.sched_setaffinity(tid, cpus)
 
 
-async def rt_pid_of(shared: Shared) -> int:
-    """The cycle's pid, from its state (read again if a read is put off)."""
-    for _ in range(100):
-        if (state := shared.read_state()) is not None and state["pid"]:
-            return int(state["pid"])
-        await asyncio.sleep(0.01)
+async def rt_pid_of(robot: str) -> int:
+    """The pid of a robot's real-time cycle, from its state (read again if a read is put off)."""
+    shared = Shared.attach(block_name(robot))
+    try:
+        for _ in range(100):
+            if (state := shared.read_state()) is not None and state["pid"]:
+                return int(state["pid"])
+            await asyncio.sleep(0.01)
+    finally:
+        shared.close()
     raise AssertionError("no state from the cycle")
+
+
+async def until_at_rest(node: Node, timeout: float) -> m.SimState:
+    """The simulated robot's state once both wheels truly turn slower than 5 mm/s."""
+    deadline = time.monotonic() + timeout
+    while abs((state := await sim_state(node)).speed_left) > 0.005 or abs(state.speed_right) > 0.005:
+        assert time.monotonic() < deadline, f"the wheels did not stop: {state}"
+        await asyncio.sleep(0.05)
+    return state
 
 
 # ---------------------------------------------------------------------------- the seqlock alone
@@ -137,9 +150,9 @@ def test_a_read_that_finds_a_write_in_progress_is_put_off_and_counted() -> None:
 async def test_a_cycle_held_mid_write_and_a_cpu_hog_crash_nothing(robot) -> None:
     async with robot.node() as node:
         _sim, hw = await start_stack(robot, node)
+        rt_pid = await rt_pid_of(robot.name)
         shared = Shared.attach(block_name(robot.name))
         try:
-            rt_pid = await rt_pid_of(shared)
             async with driving(node, v=0.2):
                 await asyncio.sleep(1.0)                 # driving at 0.2 m/s
             with cpu_hog(hw.popen.pid):
@@ -153,15 +166,7 @@ async def test_a_cycle_held_mid_write_and_a_cpu_hog_crash_nothing(robot) -> None
                 # Resumed: its first period finds the last command older than the deadman.
                 first = await asyncio.wait_for(anext(wheels), 10.0)
                 assert (first.target_left, first.target_right) == (0.0, 0.0)
-
-                async def at_rest() -> bool:
-                    state = await sim_state(node)
-                    return abs(state.speed_left) < 0.005 and abs(state.speed_right) < 0.005
-
-                deadline = time.monotonic() + 10.0
-                while not await at_rest():
-                    assert time.monotonic() < deadline, "the wheels did not stop"
-                    await asyncio.sleep(0.1)
+                await until_at_rest(node, 10.0)
 
                 async def counted() -> m.LoopStats:
                     async for stats in loops:
@@ -177,7 +182,7 @@ async def test_a_cycle_held_mid_write_and_a_cpu_hog_crash_nothing(robot) -> None
                 await asyncio.sleep(1.5)
             end = await sim_state(node)
             assert end.x - start.x > 0.1, (start, end)
-            assert hw.alive() and await rt_pid_of(shared) == rt_pid
+            assert hw.alive() and await rt_pid_of(robot.name) == rt_pid
             assert "Traceback" not in hw.output, hw.output
             print(f"stalled reads counted in hw/loop: {stats.stalled_reads}")
         finally:
@@ -188,11 +193,7 @@ async def test_a_cycle_held_mid_write_and_a_cpu_hog_crash_nothing(robot) -> None
 async def test_a_dead_cycle_stops_the_penguinpi_and_hwbridge_exits(robot) -> None:
     async with robot.node() as node:
         _sim, hw = await start_stack(robot, node)
-        shared = Shared.attach(block_name(robot.name))
-        try:
-            rt_pid = await rt_pid_of(shared)
-        finally:
-            shared.close()
+        rt_pid = await rt_pid_of(robot.name)
         async with driving(node, v=0.2):                 # the student goes on sending twists
             await asyncio.sleep(1.0)
             assert (await sim_state(node)).speed_left > 0.1
@@ -200,10 +201,7 @@ async def test_a_dead_cycle_stops_the_penguinpi_and_hwbridge_exits(robot) -> Non
             await wait_for(lambda: not hw.alive(), timeout=15)
             # The PenguinPi keeps its last demand for ever unless told: the bus process told it
             # (MULTI_ALL_STOP), and nothing drives it after that.
-            deadline = time.monotonic() + 5.0
-            while abs((state := await sim_state(node)).speed_left) > 0.005 or abs(state.speed_right) > 0.005:
-                assert time.monotonic() < deadline, state
-                await asyncio.sleep(0.05)
+            state = await until_at_rest(node, 5.0)
             await asyncio.sleep(0.5)
             still = await sim_state(node)
         assert hw.popen.returncode == 4, hw.output
@@ -224,11 +222,7 @@ def test_a_dead_cycle_stops_the_wheels_and_icefloe_up_restarts_hwbridge(tmp_path
     async def scenario() -> None:
         async with Node("tester", cfg) as node:
             await wait_for(lambda: "board link up" in log.read_text(), timeout=30)
-            shared = Shared.attach(block_name(cfg.name))
-            try:
-                rt_pid = await rt_pid_of(shared)
-            finally:
-                shared.close()
+            rt_pid = await rt_pid_of(cfg.name)
             async with driving(node, v=0.2):
                 await asyncio.sleep(1.0)
                 moving = await sim_state(node)
