@@ -350,7 +350,7 @@ class SimClockTrace:
     """The simulator's clock of a robot (whose credentials ``node`` holds) against time.monotonic(),
     sampled every `period` s through ``sim/control``: how much simulated time passed between two instants."""
 
-    period = 0.2
+    period = 0.1
 
     def __init__(self, node: Node, robot: str) -> None:
         self.node, self.robot = node, robot
