@@ -82,8 +82,8 @@ MSG_BOARD, MSG_INFO, MSG_WARNING, MSG_ERROR = 1, 2, 3, 4
 _WORD = struct.Struct("<q")
 READ_TRIES = 100
 """Seqlock read attempts before a read gives up for now (`Shared._read`). A write takes a few
-microseconds, so a writer that is running is done within a few tries (100 take 0.1-0.3 ms
-here); one that is not running does not finish sooner for being waited on."""
+microseconds, so a writer that is running is done within a few tries (100 take 0.3-0.7 ms
+on the busy build machine); one that is not running does not finish sooner for being waited on."""
 
 OFF_CMD_SEQ = 0
 OFF_CMD = 8
