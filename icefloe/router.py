@@ -60,6 +60,8 @@ def acl_rules(owners: Iterable[tuple[str, str]]) -> str:
 def router_config(config: RobotConfig, owners: list[tuple[str, str, str]] | None = None) -> zenoh.Config:
     """Zenoh config of the router; ``owners`` = (robot, user, password) for access control."""
     zc = zenoh_config(config, mode="router", listen=config.zenoh.listen)
+    # Read-only admin space: who declared what (`icefloe topics -v`, `info`, `services`; icefloe/graph.py).
+    zc.insert_json5("adminspace", '{"enabled": true, "permissions": {"read": true, "write": false}}')
     if owners is None and config.zenoh.access_control:
         if not config.zenoh.user:
             where = config.zenoh.credentials or "(zenoh.credentials is not set)"

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 from pathlib import Path
 
 import msgspec
@@ -13,6 +11,7 @@ import msgspec
 from .. import config as config_mod
 from ..config import RobotConfig
 from ..errors import ConfigError
+from ..services.viz.viewer import display_problem, how_to_look
 from .common import add_config_argument
 
 
@@ -25,8 +24,11 @@ def up(args: argparse.Namespace) -> int:
         path = sim_override(path, cfg)
         cfg = config_mod.load(path)
     services = args.only.split(",") if args.only else list(cfg.services)
-    if not args.only and not args.no_viz and can_show_viewer():
-        services.append("viz")  # the laptop's view of the robot
+    if not args.only and not args.no_viz:
+        if (problem := viewer_problem()) is None:
+            services.append("viz")  # the laptop's view of the robot
+        else:
+            print(f"[up] {problem}, so no viewer; {how_to_look()}", flush=True)
     skip = args.skip.split(",") if args.skip else []
     launcher.up(cfg, path, [s for s in services if s not in skip])
     return 0
@@ -42,12 +44,13 @@ def sim_override(path: Path, cfg: RobotConfig) -> Path:
     return out
 
 
-def can_show_viewer() -> bool:
+def viewer_problem() -> str | None:
+    """Why `up` cannot open the Rerun viewer here (one line), or None if it can."""
     try:
         import rerun  # noqa: F401
     except ImportError:
-        return False
-    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+        return "the Rerun SDK is not installed (pip install 'icefloe[viz]')"
+    return display_problem()
 
 
 def router(args: argparse.Namespace) -> int:
