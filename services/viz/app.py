@@ -83,9 +83,11 @@ def world_markers(config: RobotConfig, log: logging.Logger) -> list[tuple[int, f
 def open_recording(options: VizOptions, robots: list[str], run_dir: Path) -> tuple[rr.RecordingStream, Viewer | None]:
     """A Rerun recording with the sink the options ask for, and the default blueprint; and the
     native viewer it streams to (None with ``--save`` or ``--serve``)."""
+    viewer = None
+    if not (options.save or options.serve):  # first: without a window there is no recording to make
+        viewer = Viewer(options.grpc_port, options.memory_limit, run_dir / "rerun-viewer.log")
     rec = rr.RecordingStream(APP_ID)
     layout = blueprint(robots)
-    viewer = None
     if options.save:
         rec.save(options.save, default_blueprint=layout)
     elif options.serve:
@@ -94,8 +96,7 @@ def open_recording(options: VizOptions, robots: list[str], run_dir: Path) -> tup
         rr.serve_web_viewer(web_port=options.web_port, open_browser=False, connect_to=url)
         print(f"viz: web viewer at http://localhost:{options.web_port}/?url={url}\n"
               f"viz: native viewer: rerun {url}", flush=True)
-    else:
-        viewer = Viewer(options.grpc_port, options.memory_limit, run_dir / "rerun-viewer.log")
+    elif viewer is not None:
         rec.connect_grpc(viewer.url, default_blueprint=layout)
     return rec, viewer
 
