@@ -19,3 +19,18 @@ ensure_venv() {
         touch "$stamp"
     fi
 }
+
+# Usage: ensure_apt COMMAND PACKAGE...   install Debian packages when COMMAND is missing, if we are
+# root on Debian (tests/run.sh: Xvfb and Mesa's software renderers for the viewer tests). Otherwise
+# say so and go on: the tests that need them skip and say why.
+ensure_apt() {
+    local cmd="$1"; shift
+    command -v "$cmd" >/dev/null && return 0
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+        echo "== installing $* (apt-get)"
+        { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@"; } >/dev/null \
+            || echo "   could not install $*: the tests that need $cmd will skip"
+    else
+        echo "== $cmd is missing (apt-get install $*): the tests that need it will skip"
+    fi
+}
