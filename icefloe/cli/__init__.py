@@ -49,10 +49,10 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    p = parser()
-    argcomplete.autocomplete(p)  # answers the shell's completion request and exits, if that is what this is
-    args = p.parse_args(sys.argv[1:] if argv is None else list(argv))
     try:
+        p = parser()
+        argcomplete.autocomplete(p)  # answers the shell's completion request and exits, if that is what this is
+        args = p.parse_args(sys.argv[1:] if argv is None else list(argv))
         return int(args.run(args) or 0)
     except IcefloeError as exc:
         print(f"icefloe: {exc}", file=sys.stderr)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import sys
 import time
 from collections import defaultdict
 from collections.abc import Awaitable, Callable
@@ -167,6 +168,8 @@ async def pub(args: argparse.Namespace, config: RobotConfig) -> int:
         publisher = node.publisher(topic) if topic is not None and key == node.key(topic) else None
         await asyncio.sleep(0.2)  # let the router learn our publisher before the first put
         period = 1.0 / args.rate if args.rate else 0.0
+        if period and not args.count:
+            print(f"publishing to {key} at {args.rate:g} Hz; Ctrl-C stops", file=sys.stderr, flush=True)
         sent = 0
         while True:
             if publisher is not None:
