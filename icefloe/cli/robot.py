@@ -108,12 +108,17 @@ def register(verbs: argparse._SubParsersAction) -> None:
     p.add_argument("--skip", metavar="A,B", help="comma-separated services not to run")
     p.set_defaults(run=up)
 
-    p = verbs.add_parser("router", help="run only a robot's Zenoh router, or a lab router (--lab)")
+    p = verbs.add_parser("router", help="run only a robot's Zenoh router, or a lab router (--lab)",
+                         description="Run only a robot's Zenoh router (what `up` starts first), or with --lab "
+                                     "the router of a lab of robots with access control (docs/lab.md).")
     add_config_argument(p, positional=True)
     p.add_argument("--lab", metavar="DIR", help="folder of robots' credentials files: route and guard all of them")
     p.set_defaults(run=router)
 
-    p = verbs.add_parser("credentials", help="make a robot's credentials file (once), or print its sheet")
+    p = verbs.add_parser("credentials", help="make a robot's credentials file (once), or print its sheet",
+                         description="Make the credentials file of a robot with access control (a random "
+                                     "password, mode 0600) where its config says, unless it exists; --sheet "
+                                     "prints what a student needs to drive it (docs/lab.md).")
     add_config_argument(p, positional=True)
     p.add_argument("--host", help="the robot's address, written into the file for laptops")
     p.add_argument("--replace", action="store_true", help="make a new password even if one exists")
@@ -121,6 +126,9 @@ def register(verbs: argparse._SubParsersAction) -> None:
                    help="print a sheet with the password, to hand to whoever has the robot")
     p.set_defaults(run=credentials)
 
-    p = verbs.add_parser("config", help="check a robot config and print it resolved")
+    p = verbs.add_parser("config", help="check a robot config and print it resolved",
+                         description="Read a robot config (by name or path, with what it extends), check every "
+                                     "key, and print the result as JSON; a bad config gets one line naming the "
+                                     "file and the key.")
     add_config_argument(p, positional=True)
     p.set_defaults(run=show_config)
