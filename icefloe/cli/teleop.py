@@ -182,6 +182,7 @@ async def drive_loop(drive: Drive, keys_in: asyncio.Queue[bytes], quit_: asyncio
             latest = p
 
     poses = asyncio.create_task(follow_pose())
+    shown = ""
     try:
         next_send = 0.0
         while not quit_.is_set():
@@ -202,8 +203,10 @@ async def drive_loop(drive: Drive, keys_in: asyncio.Queue[bytes], quit_: asyncio
                 twist.put(m.Twist(v=drive.v, w=drive.w))
                 next_send = now + period
             where = f"  x {latest.x:+.2f} y {latest.y:+.2f} m" if latest else ""
-            sys.stdout.write("\r" + drive.line() + where + "\x1b[K")
-            sys.stdout.flush()
+            if (line := drive.line() + where) != shown:  # only what changed: a terminal over Wi-Fi is slow
+                sys.stdout.write("\r" + line + "\x1b[K")
+                sys.stdout.flush()
+                shown = line
     finally:
         poses.cancel()
 
