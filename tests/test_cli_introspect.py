@@ -9,7 +9,7 @@ import time
 
 import pytest
 from conftest import ROOT, Robot
-from test_cli import icefloe, wait_alive
+from test_cli import icefloe
 
 from icefloe.graph import parse
 
@@ -32,12 +32,15 @@ def test_the_graph_names_sessions_by_their_tokens() -> None:
 def running(robot: Robot) -> Robot:
     for service in ("info", "sim", "hwbridge", "odometry"):
         robot.start(service)
-    for service in ("info", "hwbridge", "odometry"):
-        wait_alive(robot, service, timeout=40)
+    deadline = time.monotonic() + 60
+    while not {"info", "hwbridge", "odometry"} <= set(icefloe(robot, "status").stdout.split()):
+        assert time.monotonic() < deadline, [p.output for p in robot.procs]
+        time.sleep(0.5)
     return robot
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)  # eight command-line runs: each starts a Python, slow on a busy machine
 def test_topics_info_and_services_say_who_does_what(running: Robot) -> None:
     robot = running
     out = icefloe(robot, "topics", "-v", "--duration", "2").stdout
@@ -64,6 +67,7 @@ def test_topics_info_and_services_say_who_does_what(running: Robot) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_typos_and_wrong_uses_get_the_closest_keys_and_a_failing_exit(running: Robot) -> None:
     robot = running
     echo = icefloe(robot, "echo", "odom/posee", "--duration", "2")
