@@ -10,7 +10,12 @@ ensure_venv() {
         echo "== creating .venv with $("$py" --version)"
         "$py" -m venv .venv
     fi
-    local stamp=".venv/.icefloe-$extras-$(cksum < pyproject.toml | cut -d' ' -f1)"
+    local sum stamp
+    sum="$(cksum < pyproject.toml | cut -d' ' -f1)"
+    stamp=".venv/.icefloe-$extras-$sum"
+    if [ "$extras" = viz ] && [ -e ".venv/.icefloe-dev-$sum" ]; then
+        return 0  # the dev extra holds the viz extra: a developer's .venv runs up.sh as it is
+    fi
     if [ ! -e "$stamp" ]; then
         echo "== installing icefloe[$extras] into .venv (first run takes a few minutes)"
         .venv/bin/python -m pip install --quiet --upgrade pip
