@@ -5,7 +5,8 @@ listed in the robot config, in order. Each child's output is prefixed with its
 name. A child that dies is restarted with back-off (1 s, 2 s, 4 s ... 30 s; the
 back-off resets once it has run for a minute); one that exits 0 (it is done, e.g. the
 viewer was closed) or 2 (it cannot start as configured, and said why) is not. Ctrl-C (or SIGTERM) stops the
-services in reverse order with SIGINT, waits, and kills what is left, so no
+services in reverse order with SIGTERM (a service exits cleanly, as on Ctrl-C; one still starting up
+just ends, without a traceback from the middle of an import), waits, and kills what is left, so no
 process stays behind.
 """
 
@@ -139,13 +140,13 @@ class Launcher:
         await asyncio.gather(*tasks, return_exceptions=True)
 
     async def stop(self) -> None:
-        """SIGINT to the services in reverse order (router last), then SIGKILL what remains."""
+        """SIGTERM to the services in reverse order (router last), then SIGKILL what remains."""
         self._stopping = True
         self.say("up", "stopping")
         for child in reversed(self.children):
             if child.process and child.process.returncode is None:
                 with contextlib.suppress(ProcessLookupError):
-                    child.process.send_signal(signal.SIGINT)
+                    child.process.send_signal(signal.SIGTERM)
                 try:
                     await asyncio.wait_for(child.process.wait(), STOP_TIMEOUT)
                 except TimeoutError:

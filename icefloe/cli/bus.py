@@ -59,7 +59,8 @@ async def look_before_listening(node: Node, key: str, typed: str, robot: str) ->
         warn(problem)
     if not in_table(key):
         warn(unknown_key(key, typed) + "; listening anyway")
-    if bus.routers and not bus.on(key, "publisher"):
+    me = str(node.session.info.zid())  # our own session declares a publisher on `log`
+    if bus.routers and not [zid for zid in bus.on(key, "publisher") if zid != me]:
         warn(f"no publisher is declared on {key} now (`icefloe topics` lists what is published)")
 
 

@@ -182,5 +182,8 @@ async def main(config: RobotConfig, options: VizOptions) -> None:
                         pass
     finally:
         # Flush and close the sink even on SIGINT, so a recording ends with a complete file.
-        rec.flush()
+        try:
+            rec.flush()
+        except RuntimeError as exc:  # the viewer is gone (its window was closed): nothing left to send to
+            logging.getLogger("icefloe.viz").info("not flushed: %s", exc)
         rec.disconnect()
