@@ -90,8 +90,9 @@ def test_typos_and_wrong_uses_get_the_closest_keys_and_a_failing_exit(running: R
     assert "left: float" in bad.stderr and "duration: float" in bad.stderr and "m/s" in bad.stderr
     # --force publishes an output key (a stand-in for a service in a test): it arrives.
     listener = subprocess.Popen([sys.executable, "-m", "icefloe.cli", "echo", "power/shutdown", "--once",
-                                 "--config", str(robot.config_path)], stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    time.sleep(2.0)
+                                 "--config", str(robot.config_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, cwd=ROOT)
+    assert "no publisher is declared" in listener.stderr.readline()  # it listens (no power service here)
     forced = icefloe(robot, "pub", "power/shutdown", '{"stamp": 5, "reason": "test"}', "--force")
     assert forced.returncode == 0, forced.stderr
     out, _ = listener.communicate(timeout=20)
