@@ -3,7 +3,9 @@ without a display `up` says in one line how to look, and nothing restarts in a l
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -16,6 +18,8 @@ from conftest import ROOT, processes_naming, robot_config
 from test_cli import wait_alive
 
 from icefloe.services.viz import viewer
+
+ViewerClient = pytest.importorskip("rerun.experimental").ViewerClient
 
 VIEWER_PORT = 9876
 """The native viewer's default port (`icefloe viz --grpc-port`), the one `up` uses."""
@@ -127,6 +131,11 @@ def test_up_opens_the_viewer_on_a_display_whatever_path_is(tmp_path: Path, xvfb:
         windows = [p for p in processes_naming(f"--port {VIEWER_PORT}") if "rerun" in Path(f"/proc/{p}/cmdline")
                    .read_text()]
         assert windows, f"no viewer process:\n{up.text}"
+        # The viewer shows the default blueprint: the robot's map, its plots (asked of the viewer itself).
+        robot = re.search(r"showing robot '([^']+)'", up.text).group(1)  # type: ignore[union-attr]
+        layout = json.dumps(ViewerClient.connect(f"rerun+http://127.0.0.1:{VIEWER_PORT}/proxy").get_blueprint()
+                            .blueprint)
+        assert f"{robot}: map (m)" in layout and "wheel speed (m/s)" in layout and "log" in layout, layout[:2000]
         time.sleep(5.0)  # viz stays up, streaming to the viewer; nothing restarts
         assert all(Path(f"/proc/{p}").exists() for p in windows), up.text
         assert "exited" not in up.text and "restarting" not in up.text, up.text
