@@ -70,6 +70,7 @@ async def test_teleop_drives_the_simulated_robot_and_every_way_out_stops_it(robo
     for service in ("sim", "hwbridge"):
         robot.start(service)
     async with robot.node("tester") as node:
+        await asyncio.wait_for(anext(node.subscribe(keys.WHEELS)), 60)  # hwbridge drives the board: up
         start = await asyncio.wait_for(retry_state(node), 40)
         term = await asyncio.to_thread(Terminal, [sys.executable, "-m", "icefloe.cli", "teleop", "--config",
                                                   str(robot.config_path)], cwd=ROOT)
