@@ -9,6 +9,7 @@ when the student closes the window.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
@@ -28,8 +29,19 @@ SETTLE_S = 1.0
 
 
 def executable() -> str:
-    """The ``rerun`` viewer installed with this Python, whatever PATH says; else the one on PATH."""
+    """The ``rerun`` viewer installed with this Python, whatever PATH says; else the one on PATH.
+
+    On Linux and Windows, the viewer binary itself (in the ``rerun_cli`` package), not the
+    ``bin/rerun`` script that starts it: a signal to the process we start then reaches the viewer.
+    """
     name = "rerun.exe" if sys.platform == "win32" else "rerun"
+    if sys.platform != "darwin":  # (on macOS the script picks the app bundle: keep it)
+        with contextlib.suppress(ImportError):
+            import rerun_cli
+
+            binary = Path(rerun_cli.__file__).parent / name
+            if binary.exists():
+                return str(binary)
     beside = Path(sysconfig.get_path("scripts")) / name
     found = str(beside) if beside.exists() else shutil.which("rerun")
     if not found:
