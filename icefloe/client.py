@@ -766,7 +766,7 @@ class AsyncRobot:
         end, sends the stop a little early (the wheels coast), and creeps on if it stopped more
         than 5 mm short. Returns the odometry pose once the robot is at rest. In the simulator it
         ends within 5 mm of the distance (docs/client.md). Raises `MotionTimeout` if it is not
-        there within ``timeout`` s (default: twice the time it should take, plus 3 s),
+        there within ``timeout`` s (default: three times the time it should take, plus 5 s),
         `MotionStopped` if a ``cmd/stop`` from another program or another command of this one
         ends it first; the wheels are stopped in every case, also when the call is cancelled::
 
@@ -807,7 +807,7 @@ class AsyncRobot:
                            timeout: float | None) -> m.Pose:
         """Run the wheels until odometry says their rims went ``target`` m along the goal's pattern."""
         if timeout is None:
-            timeout = 2 * abs(target) / speed + 3.0
+            timeout = 3 * abs(target) / speed + 5.0
         elif (timeout := _number("timeout", timeout)) <= 0:
             raise ValueError(f"timeout: must be > 0 s, got {timeout}")
         track = (await self.info()).track
