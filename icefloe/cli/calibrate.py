@@ -263,7 +263,8 @@ def report(result: cal.Calibration, views: list[cal.View]) -> None:
     k, d = result.intrinsics.camera_matrix, result.intrinsics.dist_coeffs
     quality = "good" if result.rms < GOOD_RMS_PX else "usable" if result.rms < POOR_RMS_PX else "poor"
     print(f"{len(views)} views, {sum(v.count for v in views)} corners: RMS reprojection error "
-          f"{result.rms:.3f} px ({quality}: below {GOOD_RMS_PX} px is good)")
+          f"{result.rms:.3f} px, {quality} (under {GOOD_RMS_PX} px is good; over {POOR_RMS_PX} px, "
+          f"some views are bad)")
     print(f"  fx {k[0, 0]:.1f} px  fy {k[1, 1]:.1f} px  cx {k[0, 2]:.1f} px  cy {k[1, 2]:.1f} px")
     print("  distortion k1 {:.4f}  k2 {:.4f}  p1 {:.4f}  p2 {:.4f}  k3 {:.4f}".format(*d[:5]))
     worst = int(np.argmax(result.view_errors))
