@@ -514,6 +514,8 @@ class AsyncRobot:
             except ValueError:
                 continue  # a button this client does not know (another board's)
             if msg.event == "release":
+                if not button.reports_releases:
+                    continue  # not from its board: S4 has no way to report one
                 button.is_pressed = False
                 if button._when_released is not None:
                     await self._fire(button._when_released)
@@ -899,8 +901,10 @@ class AsyncRobot:
                 raise ValueError("times: only with blink")
             self.leds[led] = on
             return
-        lit, dark = blink if isinstance(blink, tuple) else (blink, blink)
-        lit, dark = _number("blink", lit), _number("blink", dark)
+        pair = tuple(blink) if isinstance(blink, tuple | list) else (blink, blink)
+        if len(pair) != 2:
+            raise ValueError(f"blink: one number of seconds, or two (lit, dark), got {blink!r}")
+        lit, dark = _number("blink", pair[0]), _number("blink", pair[1])
         if min(lit, dark) < BLINK_MIN_S:
             raise ValueError(f"blink: each time must be >= {BLINK_MIN_S} s (the robot takes LED commands "
                              f"every 20 ms), got {blink!r}")

@@ -16,7 +16,7 @@ import os
 import tempfile
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
 
@@ -216,15 +216,16 @@ class Lens(Section):
     ``calibration`` file), as it would on a real robot. Zeros mean "as the nominal camera".
     """
 
-    fx: float = 0.0
+    fx: Annotated[float, msgspec.Meta(ge=0)] = 0.0
     """Focal length along x, pixels (0 = ``camera.focal_px``)."""
-    fy: float = 0.0
+    fy: Annotated[float, msgspec.Meta(ge=0)] = 0.0
     """Focal length along y, pixels (0 = fx)."""
-    cx: float = 0.0
+    cx: Annotated[float, msgspec.Meta(ge=0)] = 0.0
     """Principal point, pixels from the left edge (0 = the image centre)."""
-    cy: float = 0.0
+    cy: Annotated[float, msgspec.Meta(ge=0)] = 0.0
     """Principal point, pixels from the top edge (0 = the image centre)."""
-    distortion: list[float] = msgspec.field(default_factory=list)
+    distortion: Annotated[list[Annotated[float, msgspec.Meta(ge=-10, le=10)]], msgspec.Meta(max_length=5)] = \
+        msgspec.field(default_factory=list)
     """OpenCV distortion coefficients k1, k2, p1, p2[, k3] (empty = none)."""
 
 

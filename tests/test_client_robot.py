@@ -140,3 +140,30 @@ async def test_async_robot_sees_the_bus(robot):
 
         r.on_pose(on_pose)
         await wait_for(lambda: len(got) >= 2)
+
+
+async def test_hostile_button_messages_cost_a_bounded_number_of_calls(robot):
+    """A flood, absurd counts, unknown buttons, garbage: the client stays bounded and keeps going."""
+    async with robot.node("board") as node, AsyncRobot(config=robot.config) as r:
+        calls: list[int] = []
+        r.buttons["S4"].when_pressed = lambda b: calls.append(b.number)
+        with pytest.raises(ValueError, match=r"must take no argument, or one \(the button\)"):
+            r.buttons["S4"].when_pressed = lambda a, b: None
+        with pytest.raises(ValueError, match="button: expected one of S1, S2, S3, S4, SDN"):
+            r.buttons["S9"]
+        pub = node.publisher(keys.BUTTONS)
+        await asyncio.sleep(0.5)  # the client's subscriber is known to the router
+        pub.put(m.Buttons(stamp=0, button=3, presses=1_000_000))  # one message, a million presses
+        pub.put(m.Buttons(stamp=0, button=3, presses=-5))
+        pub.put(m.Buttons(stamp=0, button=77))
+        pub.put(m.Buttons(stamp=0, button=3, event="release"))  # S4 cannot tell releases: ignored
+        node.session.put(node.key(keys.BUTTONS), b"\x93garbage")
+        pub.put(m.Buttons(stamp=0, button=3))
+        await wait_for(lambda: len(calls) == 17)
+        await asyncio.sleep(0.3)
+        assert len(calls) == 17  # 16 for the million, 1 for the last press
+        assert r.buttons["S4"].presses == 1_000_001 and r.buttons["S4"].is_pressed is None
+        with pytest.raises(ValueError, match=r"blink: one number of seconds, or two \(lit, dark\)"):
+            await r.led(2, blink=(0.1,))
+        with pytest.raises(ValueError, match="times: expected a whole number >= 1"):
+            await r.led(2, blink=0.1, times=0)
