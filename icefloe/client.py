@@ -44,7 +44,7 @@ from . import config as config_mod
 from .config import RobotConfig
 from .credentials import read as read_credentials
 from .errors import ConfigError, IcefloeError, MotionStopped, MotionTimeout, NotReachable
-from .runtime import Node, open_session, why_unreachable
+from .runtime import LimitedLog, Node, open_session, why_unreachable
 from .schemas import keys
 from .schemas import messages as m
 from .schemas.keys import Topic
@@ -203,6 +203,8 @@ BUTTON_NAMES = {"S1": 0, "S2": 1, "S3": 2, "S4": 3, "SDN": 10}
 """The robot's buttons by the names printed on the board, and their numbers on ``io/buttons``."""
 MAX_CALLS_PER_MESSAGE = 16
 """At most this many ``when_pressed`` calls for one ``io/buttons`` message (it may count many presses)."""
+MAX_PENDING_CALLS = 64
+"""The blocking `Robot` keeps at most this many calls of one callback waiting for its thread."""
 
 
 def _callback(what: str, callback: object, arg: object) -> Callable[[], object] | None:
@@ -962,6 +964,10 @@ class Robot:
         self._thread = threading.Thread(target=self._loop.run_forever, name="icefloe-robot", daemon=True)
         self._thread.start()
         self._callbacks = ThreadPoolExecutor(max_workers=1, thread_name_prefix="icefloe-callbacks")
+        self._pending: dict[Callable[..., object], int] = {}
+        """Calls waiting on the callback thread, per callback (see `_dispatch`)."""
+        self._pending_lock = threading.Lock()
+        self._behind = LimitedLog(logging.getLogger("icefloe.client"), burst=1)
         self._robot: AsyncRobot | None = None
         try:
             self._robot = self._call(self._open(name, connect, config, credentials, timeout))
@@ -1007,13 +1013,26 @@ class Robot:
             raise
 
     def _dispatch(self, callback: Callable[..., object], args: tuple[Any, ...]) -> None:
-        """Run a user's callback on the callback thread (called in the loop, never blocks it)."""
+        """Run a user's callback on the callback thread (called in the loop, never blocks it).
+
+        A callback slower than its events (an ``on_pose`` that takes 0.1 s, at 50 poses a second)
+        has at most `MAX_PENDING_CALLS` calls waiting: the newer events are dropped, with a warning."""
+        log = self._robot.node.log if self._robot is not None else logging.getLogger("icefloe.client")
+        with self._pending_lock:
+            waiting = self._pending.get(callback, 0)
+            if waiting >= MAX_PENDING_CALLS:
+                self._behind.warning(f"callback {callback!r} is {waiting} events behind: newer ones dropped")
+                return
+            self._pending[callback] = waiting + 1
+
         def run() -> None:
+            with self._pending_lock:
+                self._pending[callback] -= 1
+                if not self._pending[callback]:
+                    del self._pending[callback]
             try:
                 callback(*args)
             except Exception:
-                robot = self._robot
-                log = robot.node.log if robot is not None else logging.getLogger("icefloe.client")
                 log.exception("callback %r failed", callback)
 
         with contextlib.suppress(RuntimeError):  # closing: no more callbacks

@@ -7,13 +7,17 @@ stand-in robot lives on this test's event loop; a student's script just calls it
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
 from conftest import free_port
 from webapi_helpers import board, jpeg, wait_for
 
+from icefloe import client
 from icefloe.client import AsyncRobot, Encoders, Robot
 from icefloe.errors import NotReachable
 from icefloe.schemas import keys
@@ -167,3 +171,26 @@ async def test_hostile_button_messages_cost_a_bounded_number_of_calls(robot):
             await r.led(2, blink=(0.1,))
         with pytest.raises(ValueError, match="times: expected a whole number >= 1"):
             await r.led(2, blink=0.1, times=0)
+
+
+async def test_a_slow_callback_on_the_blocking_robot_drops_events_not_memory(robot, monkeypatch, caplog):
+    monkeypatch.setattr(client, "MAX_PENDING_CALLS", 3)
+    async with board(robot) as b:
+        b.pose = m.Pose(stamp=0, x=0.5, y=0.0, theta=0.0)
+        r = await asyncio.to_thread(Robot, config=robot.config)
+        try:
+            threads: list[str] = []
+
+            def slow(_pose: m.Pose) -> None:
+                threads.append(threading.current_thread().name)
+                time.sleep(0.3)
+
+            with caplog.at_level(logging.WARNING, logger="icefloe.client"):
+                r.on_pose(slow)
+                await asyncio.sleep(1.5)  # 30 poses for a callback that takes 5
+                assert r._pending.get(slow, 0) <= 3
+            assert any("events behind: newer ones dropped" in rec.getMessage() for rec in caplog.records)
+            assert threads and set(threads) == {"icefloe-callbacks_0"}
+            assert (await asyncio.to_thread(lambda: r.pose)).x == 0.5  # state still comes in
+        finally:
+            await asyncio.to_thread(r.close)
