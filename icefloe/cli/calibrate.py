@@ -278,6 +278,11 @@ async def run(args: argparse.Namespace, config: RobotConfig) -> int:
         raise IcefloeError(f"--auto: at least 3 views, got {args.auto}")
     if args.drive and args.auto is None:
         raise IcefloeError("--drive: only with --auto N (the robot moves between automatic captures)")
+    robot_name = args.robot or config.name
+    foreign = robot_name != config.name  # e.g. --credentials of penguin1 with the default sim config
+    if foreign and not args.output and not args.dry_run:
+        raise IcefloeError(f"calibrate: the config {config.source or 'sim'} is robot {config.name!r}, not "
+                           f"{robot_name!r}: name its config (--config), or --output FILE to only write the file")
     save_dir = Path(args.save_views) if args.save_views else None
     if save_dir is not None:
         save_dir.mkdir(parents=True, exist_ok=True)
@@ -296,17 +301,23 @@ async def run(args: argparse.Namespace, config: RobotConfig) -> int:
     width, height = capture.size
     result = await asyncio.to_thread(cal.calibrate, capture.views, width, height)
     report(result, capture.views)
-    if (width, height) != (config.camera.width, config.camera.height):
+    if (width, height) != (config.camera.width, config.camera.height) and not foreign:
         raise IcefloeError(f"the camera sends {width}x{height} frames but {config.source} says "
                            f"{config.camera.width}x{config.camera.height} ([camera] width, height): the camera "
                            f"service would refuse this calibration; nothing written")
     if args.dry_run:
         print("--dry-run: nothing written")
         return 0
+    intrinsics = Intrinsics(result.intrinsics.camera_matrix, result.intrinsics.dist_coeffs, width, height)
+    if foreign:
+        calibration_file = Path(args.output).expanduser().resolve()
+        save_calibration(calibration_file, intrinsics, result.rms)
+        print(f"wrote {calibration_file}\nOn robot {robot_name!r}, set [camera] calibration to it in its config, "
+              f"then restart its camera service.")
+        return 0
     config_file, calibration_file = calibration_paths(config, args.output)
     calibration_file.parent.mkdir(parents=True, exist_ok=True)
-    save_calibration(calibration_file, Intrinsics(result.intrinsics.camera_matrix, result.intrinsics.dist_coeffs,
-                                                  width, height), result.rms)
+    save_calibration(calibration_file, intrinsics, result.rms)
     point_config_at(config_file, calibration_file)
     print(f"wrote {calibration_file}\nset [camera] calibration to it in {config_file}\n"
           f"The camera service reads it when it starts: restart it (icefloe up: Ctrl-C and up again; "
