@@ -1004,9 +1004,12 @@ class Robot:
             raise
 
     def _move(self, coro: Coroutine[Any, Any, T]) -> T:
-        """A blocking motion: whatever ends the wait early (Ctrl-C), the wheels are stopped first."""
+        """A blocking motion: if the wait ends early (Ctrl-C), the wheels are stopped before we go on.
+        (The motion's own errors have stopped them already; a bad argument sent nothing.)"""
         try:
             return self._call(coro)
+        except Exception:
+            raise
         except BaseException:
             with contextlib.suppress(Exception):
                 self._call(self._r.stop())

@@ -194,3 +194,17 @@ async def test_a_slow_callback_on_the_blocking_robot_drops_events_not_memory(rob
             assert (await asyncio.to_thread(lambda: r.pose)).x == 0.5  # state still comes in
         finally:
             await asyncio.to_thread(r.close)
+
+
+async def test_a_bad_argument_to_the_blocking_robot_sends_nothing_not_even_a_stop(robot):
+    async with board(robot) as b:
+        r = await asyncio.to_thread(Robot, config=robot.config)
+        try:
+            with pytest.raises(ValueError, match="left: 5.0 m/s is beyond this robot's max_wheel_speed"):
+                await asyncio.to_thread(r.set_velocity, 5, 5, 1)
+            with pytest.raises(ValueError, match="distance: expected a number"):
+                await asyncio.to_thread(r.forward, "far")
+            await asyncio.sleep(0.5)
+            assert b.raw == []
+        finally:
+            await asyncio.to_thread(r.close)
