@@ -147,7 +147,8 @@ async def test_ctrl_c_in_a_blocking_forward_stops_the_robot(robot):
                 proc.kill()
         recorder.cancel()
         assert proc.returncode != 0 and "KeyboardInterrupt" in out, out
-        assert stops and stops[0] - interrupted < 1.0, "no cmd/stop within 1 s of Ctrl-C"
+        # The deadman would stop the wheels too, but it sends no cmd/stop: this one is the client's.
+        assert stops and stops[0] - interrupted < 5.0, "no cmd/stop after Ctrl-C"
         await asyncio.sleep(1.0)
         still = await sim_state(node)
         assert abs(still.speed_left) < 0.005 and abs(still.speed_right) < 0.005
