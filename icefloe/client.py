@@ -694,6 +694,13 @@ class AsyncRobot:
         if self._moving is not None and self._moving.cut is None:
             self._moving.cut = why
 
+    def _halt(self) -> None:
+        """Zero wheel speeds, then ``cmd/stop``: the stop travels at Zenoh's real-time priority and
+        can overtake a ``cmd/wheels`` of ours still on its way, which would then set the wheels going
+        again until the deadman; the zero speeds queue behind that one and win in either order."""
+        self._wheels.put(m.WheelSpeeds(left=0.0, right=0.0))
+        self._stop.put(m.Stop())
+
     @contextlib.contextmanager
     def _stop_unless_done(self) -> Iterator[None]:
         """Stop the wheels if the block ends with an exception: a cancelled task (Ctrl-C in the
@@ -701,7 +708,7 @@ class AsyncRobot:
         try:
             yield
         except BaseException:
-            self._stop.put(m.Stop())
+            self._halt()
             raise
 
     async def stop(self) -> None:
@@ -852,7 +859,7 @@ class AsyncRobot:
                 rim = direction * min(top, max(CREEP_SPEED, rest / SLOW_DOWN_S))
                 steer = goal.steer(pose)
                 self._wheels.put(m.WheelSpeeds(left=goal.wheels[0] * rim - steer, right=goal.wheels[1] * rim + steer))
-            self._stop.put(m.Stop())
+            self._halt()
             stopped_at, speed_at = goal.progress(pose), goal.rim_speed(pose)
             for _ in range(int(2.0 / 0.02)):  # at rest within ~2 s (odometry comes at 50 Hz)
                 pose = await next_pose()

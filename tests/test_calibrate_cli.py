@@ -38,6 +38,7 @@ async def first_frame(robot, node) -> None:
     frames.close()
 
 
+@pytest.mark.timeout(400)  # a scan of the board: about 40 s alone, several times that on a loaded machine
 async def test_snapshot_and_calibrate_find_the_simulated_lens(make_robot, tmp_path):
     robot = make_robot(base=BASE)
     for service in ("sim", "hwbridge", "odometry", "info", "camera"):

@@ -200,7 +200,7 @@ async def test_a_bad_argument_to_the_blocking_robot_sends_nothing_not_even_a_sto
     async with board(robot) as b:
         r = await asyncio.to_thread(Robot, config=robot.config)
         try:
-            with pytest.raises(ValueError, match="left: 5.0 m/s is beyond this robot's max_wheel_speed"):
+            with pytest.raises(ValueError, match=r"left: 5\.0 m/s is beyond this robot's max_wheel_speed"):
                 await asyncio.to_thread(r.set_velocity, 5, 5, 1)
             with pytest.raises(ValueError, match="distance: expected a number"):
                 await asyncio.to_thread(r.forward, "far")

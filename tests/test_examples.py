@@ -103,6 +103,7 @@ async def test_press_and_go_waits_for_s4_and_comes_back(robot):
         assert "DIP switches: 0001" in example.output and "S4 pressed (1 so far)" in example.output
         assert farthest == pytest.approx(0.3, abs=0.03), example.output
         assert math.hypot(end.x - start.x, end.y - start.y) < 0.05, example.output
+    await wait_for(lambda: not example.alive(), timeout=30)  # it ends by itself
     assert example.stop() == 0, example.output
 
 
