@@ -98,3 +98,10 @@ async def test_snapshot_and_calibrate_find_the_simulated_lens(make_robot, tmp_pa
     async with robot.node() as node:
         await first_frame(robot, node)
     assert restarted.alive(), restarted.output
+
+
+async def test_snapshot_without_a_camera_says_so_in_one_line(robot, tmp_path):
+    done = await icefloe("snapshot", str(tmp_path / "f.jpg"), "--config", str(robot.config_path), "--timeout", "1")
+    assert done.returncode == 2 and not (tmp_path / "f.jpg").exists()
+    assert done.stderr.count("\n") == 1 and f"icefloe/{robot.name}/camera/snapshot: nobody answers" in done.stderr
+    assert "(after 1 s)" in done.stderr

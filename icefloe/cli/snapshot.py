@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import time
 from pathlib import Path
 
@@ -10,8 +11,8 @@ import cv2
 import numpy as np
 
 from ..config import RobotConfig
-from ..errors import IcefloeError
-from ..runtime import run_async
+from ..errors import BadPayload, IcefloeError, NotReachable
+from ..runtime import Node, run_async
 from ..schemas import keys
 from ..schemas import messages as m
 from .common import add_bus_arguments, bus_config, cli_node
@@ -37,13 +38,26 @@ def save(image: m.Image, path: Path) -> None:
                            f"(use .jpg, or .png, .bmp, .tiff)")
 
 
+async def ask(node: Node, robot: str, timeout: float) -> m.Image:
+    """The camera's answer, asked again until ``timeout`` while the camera service is not up yet or
+    has no frame yet (it has just started)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return await node.query(keys.SNAPSHOT, m.Stop(), timeout=max(0.5, deadline - time.monotonic()),
+                                    robot=robot)
+        except (NotReachable, BadPayload) as exc:
+            if time.monotonic() > deadline:
+                raise IcefloeError(f"{exc} (after {timeout:.0f} s)") from None
+        await asyncio.sleep(0.3)
+
+
 async def snapshot(args: argparse.Namespace, config: RobotConfig) -> int:
     path = Path(args.file)
     if not path.parent.is_dir():
         raise IcefloeError(f"{path}: no folder {path.parent} to save it in")
     async with cli_node(config) as node:
-        image: m.Image = await node.query(keys.SNAPSHOT, m.Stop(), timeout=args.timeout,
-                                          robot=args.robot or config.name)
+        image = await ask(node, args.robot or config.name, args.timeout)
     save(image, path)
     age = (time.time_ns() - image.stamp) / 1e9
     print(f"{path}: {image.width}x{image.height}, {path.stat().st_size} bytes, taken {age:.2f} s ago")
