@@ -16,7 +16,7 @@ import os
 import tempfile
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
 
@@ -209,6 +209,26 @@ class Localizer(Section):
     showing >= 2 known markers (0 = never)."""
 
 
+class Lens(Section):
+    """The simulated camera's true lens: what `icefloe calibrate` measures (``[sim.lens]``).
+
+    The camera service does not read it: it believes ``[camera]`` (``focal_px``, or its
+    ``calibration`` file), as it would on a real robot. Zeros mean "as the nominal camera".
+    """
+
+    fx: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Focal length along x, pixels (0 = ``camera.focal_px``)."""
+    fy: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Focal length along y, pixels (0 = fx)."""
+    cx: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Principal point, pixels from the left edge (0 = the image centre)."""
+    cy: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Principal point, pixels from the top edge (0 = the image centre)."""
+    distortion: Annotated[list[Annotated[float, msgspec.Meta(ge=-10, le=10)]], msgspec.Meta(max_length=5)] = \
+        msgspec.field(default_factory=list)
+    """OpenCV distortion coefficients k1, k2, p1, p2[, k3] (empty = none)."""
+
+
 class Sim(Section):
     world: str = "lab"
     """The simulated world: a world name or a path, as `Localizer.world`."""
@@ -225,6 +245,8 @@ class Sim(Section):
     gateware_clk_hz: float = 1e6
     """icoboard = "gateware": the FPGA clock in the simulation, Hz (the board's is 100 MHz;
     scaled down so the simulation keeps real time)."""
+    lens: Lens = Lens()
+    """The simulated camera's true lens (defaults: the nominal camera of ``[camera]``)."""
 
 
 class Webapi(Section):

@@ -21,8 +21,9 @@ from .routes import Api
 
 
 async def main(config: RobotConfig) -> None:
-    # A short timeout for bus waits: an HTTP client should hear "not answering" soon.
-    robot = AsyncRobot(config=config, service="webapi", timeout=2.0)
+    # A short timeout for bus waits: an HTTP client should hear "not answering" soon. clamp: the
+    # old server let the board clamp demands up to 100 (0.53 m/s); hwbridge clamps them the same.
+    robot = AsyncRobot(config=config, service="webapi", timeout=2.0, clamp=True)
     try:
         await robot.open(connect_timeout=math.inf)  # a service waits for its router to come up
         await serve(robot)
