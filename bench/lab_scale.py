@@ -1,6 +1,6 @@
 """Lab scale: one lab router, N simulated robots, laptops that drive two of them.
 
-    .venv/bin/python bench/lab_scale.py [--robots 10] [--seconds 10] [--cycle-hz 250] [--odom-hz 25]
+    .venv/bin/python bench/lab_scale.py [--robots 10] [--seconds 10] [--cycle-hz 250] [--odom-hz 25] [--direct]
 
 "A lab is a room with twenty robots and forty laptops on one Wi-Fi." This script
 builds that room on one machine, with real processes and real Zenoh sessions
@@ -10,7 +10,8 @@ builds that room on one machine, with real processes and real Zenoh sessions
 * one lab router, ``icefloe router lab.toml --lab DIR``, on a free loopback port;
 * N simulated robots without cameras (``services.sim`` + ``services.hwbridge`` +
   ``services.odometry`` each), each in its own namespace ``icefloe/<name>/`` with
-  its own credentials, connected to the lab router;
+  its own credentials and its own router, which joins the lab router (``[zenoh] lab``;
+  ``--direct``: no robot routers, the services connect to the lab router);
 * a student's laptop holding two robots' credentials (one Zenoh session per
   credential), and a classmate's laptop logged in as the read-only ``guest``.
 
@@ -205,6 +206,8 @@ class Report:
     driven: tuple[str, str]
     intruded: str
     """The robot the laptop tried to drive with robot 0's credentials."""
+    mesh: bool
+    """Each robot has its own router, joined to the lab router (else: services on the lab router)."""
 
     def failures(self) -> list[str]:
         """What went wrong, in words (empty: every check passed)."""
@@ -276,7 +279,7 @@ async def measure(lab: Lab, seconds: float, *, start_timeout: float = 60.0, spee
             twists_sent=sent if n in targets else 0, twists_heard=laptops.twists_heard[n],
             cycle_hz=cycle_hz, overruns=overruns)
     return Report(rates=lab.rates, speed=speed, window_s=t1 - t0, startup_s=startup_s, seen=seen, robots=results,
-                  cpu=cpu, machine_pct=machine_pct, driven=(a, b), intruded=intruded)
+                  cpu=cpu, machine_pct=machine_pct, driven=(a, b), intruded=intruded, mesh=lab.mesh)
 
 
 def _cycle_rate(stats: list[m.LoopStats]) -> tuple[float, int]:
@@ -293,6 +296,8 @@ def _cycle_rate(stats: list[m.LoopStats]) -> tuple[float, int]:
 
 def print_report(report: Report) -> None:
     r, n, speed = report.rates, len(report.robots), report.speed
+    print("topology: " + ("each robot's own router joins the lab router (ws); laptops on the lab router"
+                          if report.mesh else "every robot's services and the laptops on the lab router"))
     print(f"rates per robot: sim clock 1000 Hz (fixed), hwbridge cycle {r.cycle_hz:g} Hz, "
           f"serial {r.serial_hz:g} Hz, hw/wheels {r.wheels_hz:g} Hz, odom/pose {r.odom_hz:g} Hz")
     print(f"{n} robots alive {report.startup_s:.1f} s after their processes started, each with "
@@ -311,7 +316,7 @@ def print_report(report: Report) -> None:
     print(f"  lab router                  {cpu['router']:6.1f}   (reference: {cpu['router idle']:.1f} idle, "
           f"before the robots joined; {(cpu['router'] - cpu['router idle']) / n:.2f} per robot)")
     print(f"  all robot processes         {cpu['robots']:6.1f}   ({cpu['robots'] / n:.1f} per robot)")
-    for service in (*SERVICES, "hwbridge-rt"):
+    for service in (*SERVICES, "hwbridge-rt", "robot router"):
         print(f"    {service:<25} {cpu.get(service, 0.0):6.1f}")
     print(f"  the laptops (this process)  {cpu['laptop']:6.1f}")
     print(f"  whole machine, all users    {report.machine_pct:6.1f} % of {os.cpu_count()} CPUs busy")
@@ -326,12 +331,14 @@ def main() -> int:
     parser.add_argument("--serial-hz", type=float, default=defaults.serial_hz, help="hwbridge.serial_rate_hz")
     parser.add_argument("--wheels-hz", type=float, default=defaults.wheels_hz, help="hwbridge.wheels_rate_hz")
     parser.add_argument("--odom-hz", type=float, default=defaults.odom_hz, help="odometry.rate_hz")
+    parser.add_argument("--direct", action="store_true",
+                        help="no robot routers: every robot's services are clients of the lab router")
     args = parser.parse_args()
     if args.robots < 3:
         parser.error("--robots: at least 3 (two driven, one to try with the wrong credentials)")
     print(f"$ {' '.join([Path(sys.executable).name, *sys.argv])}")
     rates = Rates(args.cycle_hz, args.serial_hz, args.wheels_hz, args.odom_hz)
-    with tempfile.TemporaryDirectory() as tmp, Lab(Path(tmp), args.robots, rates) as lab:
+    with tempfile.TemporaryDirectory() as tmp, Lab(Path(tmp), args.robots, rates, mesh=not args.direct) as lab:
         lab.start_router()
         report = asyncio.run(measure(lab, args.seconds, start_timeout=30.0 + 6.0 * args.robots))
     print_report(report)

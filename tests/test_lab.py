@@ -1,7 +1,8 @@
 """A lab: one lab router (`icefloe router --lab`), three simulated robots, laptops with credentials.
 
-Real processes throughout: the lab router, and per robot ``services.sim`` +
-``services.hwbridge`` + ``services.odometry`` with access control on. The
+Real processes throughout: the lab router, and per robot its own router joined to the
+lab router (``[zenoh] lab``, docs/lab.md) and ``services.sim`` + ``services.hwbridge`` +
+``services.odometry`` with access control on. The
 harness is the one ``bench/lab_scale.py`` runs with ten robots; here we assert
 on what it saw. The checks are about behaviour (who may drive whom, every
 robot heard); the rate check is relative to each robot's own configured rate.
@@ -22,7 +23,7 @@ pytestmark = pytest.mark.slow
 
 
 async def test_a_lab_router_keeps_robots_apart(tmp_path: Path) -> None:
-    with lab_scale.Lab(tmp_path, robots=3) as lab:
+    with lab_scale.Lab(tmp_path, robots=3, mesh=True) as lab:
         lab.start_router()
         report = await lab_scale.measure(lab, seconds=4.0, start_timeout=45.0)
         assert lab.router.alive(), "the lab router died"
