@@ -1,0 +1,478 @@
+"""The hostile suite: a student tries to drive, stop, reset, power off or impersonate a robot
+that is not theirs, over Zenoh and HTTP, on the robot's router and through the lab mesh.
+
+One lab for the module, real processes throughout (`bench/lab_harness.Lab`, ``mesh=True``):
+a lab router (``icefloe router --lab``), robot V with its own router joined to it and real
+``sim``, ``hwbridge``, ``odometry``, ``power``, ``info`` and ``webapi`` services, and robot O
+whose router alone joins the lab (its owner is the attacker next door). Every attack is
+checked on the robot itself: the simulator's truth (no motion), the power-off command (never
+run), what V's own sessions receive (no forged message, no query), the tokens V's owner sees.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import msgspec
+import pytest
+import zenoh
+from conftest import ROOT, Robot, free_port, wait_for
+
+from icefloe import config as config_mod
+from icefloe.client import AsyncRobot
+from icefloe.credentials import GUEST_PASSWORD, GUEST_USER, Credentials, read
+from icefloe.errors import NotReachable
+from icefloe.runtime import MSGPACK, Node
+from icefloe.schemas import codec, keys
+from icefloe.schemas import messages as m
+
+sys.path.insert(0, str(ROOT / "bench"))
+from lab_harness import Lab
+
+VICTIM_SERVICES = ("sim", "hwbridge", "odometry", "power", "info", "webapi")
+STILL_M = 0.002
+"""A robot nobody may drive moves less than this (the simulator adds no noise), m."""
+
+
+# ---------------------------------------------------------------------------- the lab
+
+
+@dataclass
+class Mesh:
+    lab: Lab
+    victim: str
+    other: str
+    powered_off: Path
+    """The victim's power.poweroff_command touches this file."""
+    http: str
+    """Base URL of the victim's web API."""
+
+    @property
+    def lab_router(self) -> str:
+        return self.lab.endpoint
+
+    def robot_router(self, name: str) -> str:
+        return self.lab.endpoints[name]
+
+    def owner(self, name: str) -> Credentials:
+        return read(self.lab.credentials_file(name))
+
+
+@pytest.fixture(scope="module")
+def mesh(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Mesh]:
+    root = tmp_path_factory.mktemp("security")
+    flag, port = root / "powered-off", free_port()
+
+    def victim_toml(i: int, name: str) -> str:
+        return (f'[power]\npoweroff_command = ["touch", "{flag}"]\n\n'
+                f'[webapi]\nhost = "127.0.0.1"\nport = {port}\n') if i == 0 else ""
+
+    with Lab(root, robots=2, mesh=True, services=VICTIM_SERVICES, extra_toml=victim_toml) as lab:
+        lab.start_router()
+        victim, other = lab.names
+        lab.start_robot(victim)
+        lab.start_robot(other, services=[])  # its router only: its owner is our attacker
+        mesh = Mesh(lab, victim, other, flag, f"http://127.0.0.1:{port}")
+        asyncio.run(_wait_ready(mesh))
+        yield mesh
+    assert lab.killed == [], f"these did not stop on SIGINT: {lab.killed}"
+
+
+async def _wait_ready(mesh: Mesh) -> None:
+    """Every service of V, and O's router, seen from a guest's laptop on the lab router."""
+    want = {keys.alive_key(mesh.victim, s) for s in (*VICTIM_SERVICES, "router")}
+    want.add(keys.alive_key(mesh.other, "router"))
+    async with laptop(mesh.lab_router) as guest:
+        deadline = time.monotonic() + 90
+        while not want <= set(await guest.alive("*")):
+            assert time.monotonic() < deadline, f"not alive: {want - set(await guest.alive('*'))}\n" + \
+                "\n".join(mesh.lab.dead())
+            await asyncio.sleep(0.5)
+        poses = guest.subscribe(keys.ODOM_POSE, robot=mesh.victim)
+        await asyncio.wait_for(poses.__anext__(), 30)
+
+
+def laptop(endpoint: str, user: str = GUEST_USER, password: str = GUEST_PASSWORD, robot: str = "sim") -> Node:
+    """A laptop's session on one router, logged in as ``user`` (the read-only guest by default)."""
+    base = config_mod.load(None)
+    zenoh_cfg = msgspec.structs.replace(base.zenoh, connect=[endpoint], user=user, password=password)
+    return Node("laptop", msgspec.structs.replace(base, name=robot, zenoh=zenoh_cfg), announce=False, retry=False)
+
+
+def owner_laptop(mesh: Mesh, name: str, endpoint: str) -> Node:
+    creds = mesh.owner(name)
+    return laptop(endpoint, creds.user, creds.password, robot=name)
+
+
+class Truth:
+    """The simulated robot's true pose, as the simulator publishes it (``sim/truth``)."""
+
+    def __init__(self, node: Node, robot: str) -> None:
+        self.latest: m.Truth | None = None
+        self._task = asyncio.create_task(self._follow(node.subscribe(keys.TRUTH, robot=robot)))
+
+    async def _follow(self, sub: Any) -> None:
+        async for truth in sub:
+            self.latest = truth
+
+    async def now(self) -> m.Truth:
+        await wait_for(lambda: self.latest is not None, timeout=10)
+        assert self.latest is not None
+        return self.latest
+
+    async def moved_since(self, before: m.Truth) -> float:
+        after = await self.now()
+        return math.hypot(after.x - before.x, after.y - before.y)
+
+
+# ---------------------------------------------------------------------------- the attack matrix
+
+
+def wildcard_forms(key: str) -> list[str]:
+    """The key itself and every wildcard form of it a student might try: ``*``, ``**`` and a
+    ``$*`` chunk in each position, and ``**`` below each prefix (``icefloe/**``, ``**``)."""
+    chunks = key.split("/")
+    forms = {key}
+    for i, chunk in enumerate(chunks):
+        for wild in ("*", "**", chunk[:1] + "$*"):
+            forms.add("/".join([*chunks[:i], wild, *chunks[i + 1:]]))
+        forms.add("/".join([*chunks[:i], "**"]))
+    return sorted(str(zenoh.KeyExpr.autocanonize(f)) for f in forms)
+
+
+def includes(rule: str, key_expr: str) -> bool:
+    return zenoh.KeyExpr(rule).includes(zenoh.KeyExpr(key_expr))
+
+
+COMMAND_QUERIES = (keys.ODOM_RESET, keys.SHUTDOWN_REQUEST, keys.MOTION, keys.HALT, keys.SIM_CONTROL)
+
+
+def command_request(topic: keys.Topic, n: int) -> m.Message:
+    """A request that would do harm if it got through, unique per attempt ``n``."""
+    return {
+        keys.ODOM_RESET: lambda: m.PoseReset(x=1000.0 + n),
+        keys.SHUTDOWN_REQUEST: lambda: m.ShutdownRequest(reason=f"attack {n}"),
+        keys.MOTION: lambda: m.Motion(left=0.3, right=0.3, duration=1.0 + n * 1e-4),
+        keys.HALT: lambda: m.Stop(),
+        keys.SIM_CONTROL: lambda: m.SimControl(action="set_dip", dip=13, volts=float(n)),
+    }[topic]()
+
+
+@dataclass
+class Matrix:
+    """Every attempt made, and what each attacker's side saw."""
+
+    attempts: list[str] = field(default_factory=list)
+    payloads: dict[bytes, str] = field(default_factory=dict)
+    """Payload -> the attempt that sent it (each is unique)."""
+    replies: dict[str, list[bytes]] = field(default_factory=dict)
+    """Query attempt -> the replies it got."""
+    received: dict[str, int] = field(default_factory=dict)
+    """Subscriber attempt -> samples it got."""
+    declared: list[Any] = field(default_factory=list)
+
+    def attempt(self, what: str, payload: bytes | None = None) -> int:
+        self.attempts.append(what)
+        if payload is not None:
+            self.payloads[payload] = what
+        return len(self.attempts)
+
+
+async def attack(matrix: Matrix, name: str, session: zenoh.Session, spare: zenoh.Session,
+                 victim: str) -> list[Any]:
+    """Everything ``name`` tries against ``victim`` at once; returns the pending queries.
+
+    Subscriptions outside ``icefloe/**`` are declared on ``spare``, a session with no other
+    subscription: a session hands every sample it gets to all its own matching subscribers,
+    so in ``session`` they would hear what its allowed subscriptions bring in."""
+    def n() -> int:
+        return len(matrix.attempts)
+
+    for form in wildcard_forms(keys.key(victim, keys.TWIST)):
+        payload = codec.encode(m.Twist(v=0.3, w=0.001 * n()))
+        matrix.attempt(f"{name}: put {form}", payload)
+        session.put(form, payload, encoding=MSGPACK)
+        matrix.attempt(f"{name}: delete {form}")
+        session.delete(form)
+    for form in wildcard_forms(keys.key(victim, keys.ODOM_POSE)):
+        payload = codec.encode(m.Pose(stamp=n(), x=1000.0 + n(), y=0.0, theta=0.0))
+        matrix.attempt(f"{name}: put {form}", payload)
+        session.put(form, payload, encoding=MSGPACK)
+    pending = []
+    for topic in COMMAND_QUERIES:
+        for form in wildcard_forms(keys.key(victim, topic)):
+            payload = codec.encode(command_request(topic, n()))
+            what = f"{name}: query {form}"
+            matrix.attempt(what, payload)
+            pending.append((what, session.get(form, payload=payload, encoding=MSGPACK, timeout=2.0)))
+    for form in wildcard_forms(keys.key(victim, keys.INFO)):
+        what = f"{name}: query {form}"
+        matrix.attempt(what)
+        pending.append((what, session.get(form, timeout=2.0)))
+    for topic in (keys.INFO, keys.SNAPSHOT):
+        for form in wildcard_forms(keys.key(victim, topic)):
+            matrix.attempt(f"{name}: declare queryable {form}")
+            forged, own_key = f"forged by {name}".encode(), keys.key(victim, topic)
+            matrix.declared.append(session.declare_queryable(
+                form, lambda q, forged=forged, own_key=own_key: q.reply(own_key, forged)))
+    for form in wildcard_forms(keys.alive_key(victim, "fake")):
+        matrix.attempt(f"{name}: liveliness token {form}")
+        matrix.declared.append(session.liveliness().declare_token(form))
+    for form in wildcard_forms(keys.key(victim, keys.ODOM_POSE)):
+        what = f"{name}: declare subscriber {form}"
+        matrix.attempt(what)
+        matrix.received[what] = 0
+        on = session if includes("icefloe/**", form) else spare
+        matrix.declared.append(on.declare_subscriber(
+            form, lambda _s, what=what: matrix.received.__setitem__(what, matrix.received[what] + 1)))
+    return pending
+
+
+class RobotView:
+    """What robot V's own sessions would see: a session with V's credentials on V's router,
+    subscribed to and serving all of ``icefloe/V/**``, recording whatever came from an attack."""
+
+    MARKER = b"the owner's marker"
+
+    def __init__(self, node: Node, matrix: Matrix) -> None:
+        victim = node.robot
+        self.samples: list[str] = []
+        self.queries: list[str] = []
+        self.marker_seen = False
+
+        def on_sample(s: zenoh.Sample) -> None:
+            key, payload = str(s.key_expr), s.payload.to_bytes()
+            if payload == self.MARKER:
+                self.marker_seen = True
+            elif s.kind == zenoh.SampleKind.DELETE or not keys.is_concrete(key) or payload in matrix.payloads:
+                self.samples.append(f"{s.kind} {key} from {matrix.payloads.get(payload, '?')}")
+
+        read_only = [keys.key("*", t) for t in keys.READ_ONLY_QUERIES]
+
+        def on_query(q: zenoh.Query) -> None:
+            if any(includes(rule, str(q.key_expr)) for rule in read_only):
+                return  # anyone may ask those
+            payload = q.payload.to_bytes() if q.payload is not None else b""
+            self.queries.append(f"query {q.key_expr} from {matrix.payloads.get(payload, '?')}")
+
+        self._sub = node.session.declare_subscriber(f"icefloe/{victim}/**", on_sample)
+        self._queryable = node.session.declare_queryable(f"icefloe/{victim}/**", on_query)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+        self._queryable.undeclare()
+
+
+async def tokens(node: Node) -> set[str]:
+    """Every liveliness token under ``icefloe/``, raw (without `Node.alive`'s filter)."""
+    replies = await asyncio.to_thread(lambda: list(node.session.liveliness().get("icefloe/**", timeout=1.0)))
+    return {str(r.ok.key_expr) for r in replies if r.ok is not None}
+
+
+async def collect(pending: list[tuple[str, Any]], into: dict[str, list[bytes]]) -> None:
+    """Wait for every query to end; the payload of each reply (an error reply as ``b"error"``)."""
+    def run() -> None:
+        for what, replies in pending:
+            into[what] = [r.ok.payload.to_bytes() if r.ok is not None else b"error" for r in replies]
+
+    await asyncio.to_thread(run)
+
+
+@pytest.mark.slow
+async def test_zenoh_attacks_are_refused_on_every_router(mesh: Mesh) -> None:
+    """Guests and another robot's owner, on V's router, on the lab router and on O's router:
+    every wildcard form of put, delete, query, queryable, token and subscriber."""
+    v, o = mesh.victim, mesh.other
+    other = mesh.owner(o)
+    attackers = {
+        f"guest on {v}'s router": (mesh.robot_router(v), GUEST_USER, GUEST_PASSWORD),
+        "guest on the lab router": (mesh.lab_router, GUEST_USER, GUEST_PASSWORD),
+        f"guest on {o}'s router": (mesh.robot_router(o), GUEST_USER, GUEST_PASSWORD),
+        f"{o}'s owner on the lab router": (mesh.lab_router, other.user, other.password),
+        f"{o}'s owner on {o}'s router": (mesh.robot_router(o), other.user, other.password),
+    }
+    with pytest.raises(NotReachable):  # another robot's owner cannot even log in on V's router
+        async with laptop(mesh.robot_router(v), other.user, other.password):
+            pass
+
+    matrix = Matrix()
+    async with owner_laptop(mesh, v, mesh.robot_router(v)) as robot, \
+            owner_laptop(mesh, v, mesh.lab_router) as owner, contextlib.AsyncExitStack() as stack:
+        sessions = {name: await stack.enter_async_context(laptop(ep, user, pw))
+                    for name, (ep, user, pw) in attackers.items()}
+        spares = {name: await stack.enter_async_context(laptop(ep, user, pw))
+                  for name, (ep, user, pw) in attackers.items()}
+        truth = Truth(robot, v)
+        poses = robot.subscribe(keys.ODOM_POSE)
+        # Each attacker's session is wired up once it hears V's poses.
+        for node in sessions.values():
+            await asyncio.wait_for(node.subscribe(keys.ODOM_POSE, robot=v).__anext__(), 15)
+        view = RobotView(robot, matrix)
+        start = await truth.now()
+        pending = []
+        for name, node in sessions.items():
+            pending += await attack(matrix, name, node.session, spares[name].session, v)
+        await collect(pending, matrix.replies)
+
+        # A control through the same routers: what V's owner sends on the lab router arrives.
+        owner.session.put(keys.key(v, "security/marker"), RobotView.MARKER)
+        await wait_for(lambda: view.marker_seen, timeout=5)
+        await asyncio.sleep(1.0)  # anything still on its way arrives now
+        # The subscriptions included in icefloe/** hear V; the others (outside it) are refused.
+        for what, count in matrix.received.items():
+            form = what.rsplit(" ", 1)[1]
+            if includes("icefloe/**", form):
+                assert count > 0, f"{what}: a guest may watch every robot, but heard nothing"
+            else:
+                assert count == 0, f"{what}: refused subscription got {count} samples"
+        after = await truth.now()
+        pose = await asyncio.wait_for(poses.__anext__(), 5)
+        view.close()
+        listed = await tokens(robot)
+        infos = await asyncio.to_thread(lambda: [r.ok.payload.to_bytes() if r.ok else b"error"
+                                                 for r in robot.session.get(keys.key(v, keys.INFO), timeout=2.0)])
+        snapshots = await asyncio.to_thread(lambda: list(robot.session.get(keys.key(v, keys.SNAPSHOT), timeout=1.0)))
+        for q in matrix.declared:
+            q.undeclare()
+
+    # Nothing reached the robot's own sessions: no put, delete or query (V's view is ACL-level).
+    assert view.samples == [], f"{len(view.samples)} forged messages reached {v}: {view.samples[:10]}"
+    assert view.queries == [], f"{len(view.queries)} queries reached {v}'s services: {view.queries[:10]}"
+    # ... and the robot itself: no motion, no power-off, no reset pose, no forged token or answer.
+    assert math.hypot(after.x - start.x, after.y - start.y) < STILL_M
+    assert not mesh.powered_off.exists(), "the power-off command ran"
+    assert pose.x < 1000.0, f"odometry reset by an attacker: {pose}"
+    assert not [t for t in listed if "fake" in t or not keys.is_concrete(t)], listed
+    assert infos and all(msgspec.msgpack.decode(i, type=m.RobotInfo).name == v for i in infos), infos
+    assert snapshots == []  # no camera runs on V: nobody may answer in its place
+    # The attacker's side: command queries got no answer; read-only ones only where included.
+    for what, got in matrix.replies.items():
+        form = what.rsplit(" ", 1)[1]
+        readable = form.endswith("/info") and includes(keys.key("*", keys.INFO), form)
+        assert bool(got) == readable, f"{what}: {got}"
+    async with aiohttp.ClientSession() as http, http.get(f"{mesh.http}/hat/dip/get") as r:
+        assert (await r.text()) != "13"  # sim/control's set_dip never ran
+    assert mesh.lab.dead() == [], mesh.lab.dead()
+    print(f"\nattack matrix: {len(matrix.attempts)} attempts by {len(attackers)} attackers "
+          f"({len(matrix.attempts) // len(attackers)} each); none reached {v}")
+
+
+# ---------------------------------------------------------------------------- the owner, and the services' own checks
+
+
+@pytest.mark.slow
+async def test_the_owner_does_everything_through_the_lab_router(mesh: Mesh, tmp_path: Path) -> None:
+    """V's credentials on the lab router: drive, stop, timed motion, reset, ask; V in status and viz."""
+    v = mesh.victim
+    out = tmp_path / "lab.rrd"
+    viz = subprocess.Popen([sys.executable, "-m", "icefloe.services.viz", "--connect", mesh.lab_router,
+                            "--save", str(out), "--duration", "8"], cwd=ROOT, text=True,
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    async with AsyncRobot(credentials=mesh.lab.credentials_file(v), connect=mesh.lab_router) as robot, \
+            owner_laptop(mesh, v, mesh.robot_router(v)) as view:
+        truth = Truth(view, v)
+        await robot.ready(keys.ODOM_POSE.name)
+        start = await truth.now()
+        await robot.set_velocity(0.15, 0.15)  # held until the next command
+        await wait_for(lambda: truth.latest and math.hypot(truth.latest.x - start.x, truth.latest.y - start.y) > 0.05)
+        await robot.stop()
+        await asyncio.sleep(0.5)
+        stopped = await truth.now()
+        await asyncio.sleep(0.5)
+        assert await truth.moved_since(stopped) < STILL_M  # stopped means stopped
+        done = await robot.set_velocity(0.1, 0.1, duration=0.5)  # cmd/motion, answered when over
+        assert done is not None and done.completed
+        assert (await robot.reset_pose(x=0.5)).x == 0.5
+        await wait_for(lambda: robot.pose is not None and abs(robot.pose.x - 0.5) < 0.01)
+        info = await robot.node.query(keys.INFO)
+        assert info.name == v
+    status = subprocess.run([sys.executable, "-m", "icefloe.cli", "status", "--connect", mesh.lab_router],
+                            capture_output=True, text=True, cwd=ROOT, timeout=60)
+    line = next(x for x in status.stdout.splitlines() if x.startswith(f"{v}:"))
+    assert set(line.split()[1:]) >= {*VICTIM_SERVICES, "router"}, status.stdout
+    output, _ = viz.communicate(timeout=60)
+    assert f"showing robot {v!r}" in output, output
+    from icefloe.services.viz.readback import read_rrd
+
+    assert read_rrd(out).get(f"/robots/{v}/map/odom", {}).get("log_time"), "viz drew no pose of the robot"
+
+
+@pytest.mark.slow
+async def test_wildcards_in_the_owners_own_space_are_dropped_by_the_services(mesh: Mesh) -> None:
+    """The access rules let V's owner use wildcards inside icefloe/V/; the services still take
+    commands on their own keys only, and the liveliness view lists concrete tokens only."""
+    v = mesh.victim
+    async with owner_laptop(mesh, v, mesh.lab_router) as owner, \
+            owner_laptop(mesh, v, mesh.robot_router(v)) as view:
+        truth = Truth(view, v)
+        logs = view.subscribe(keys.LOG, latest=False, maxsize=1000)
+        lines: list[str] = []
+        stamped: list[tuple[int, str]] = []
+        follow = asyncio.create_task(_collect_logs(logs, lines, stamped))
+        poses = view.subscribe(keys.ODOM_POSE)
+        start = await truth.now()
+        reset = codec.encode(m.PoseReset(x=777.0))
+        for form in (keys.key(v, "odom/*"), keys.key(v, "odom/re$*"), keys.key(v, "power/*"), keys.key(v, "**")):
+            replies = await asyncio.to_thread(lambda f=form: list(owner.session.get(f, payload=reset, timeout=1.5)))
+            assert all(r.ok is None or b"777" not in r.ok.payload.to_bytes() for r in replies)
+        await wait_for(lambda: any("odometry: dropped a message sent to" in line for line in lines))
+        twist = codec.encode(m.Twist(v=0.3, w=0.0))
+        wild = [keys.key(v, "cmd/*"), keys.key(v, "cmd/**"), keys.key(v, "**"), keys.key(v, "c$*/twist"),
+                keys.key(v, "cmd/tw$*")]
+        for _ in range(5):
+            for form in wild:
+                owner.session.put(form, twist, encoding=MSGPACK)
+                owner.session.put(form.replace("twist", "stop"), codec.encode(m.Stop()), encoding=MSGPACK)
+            await asyncio.sleep(0.1)
+        token = owner.session.liveliness().declare_token(keys.alive_key(v, "*"))
+        await wait_for(lambda: any("dropped a message sent to" in line and "cmd/" in line for line in lines))
+        await asyncio.sleep(1.0)
+        assert await truth.moved_since(start) < STILL_M
+        assert (await asyncio.wait_for(poses.__anext__(), 5)).x < 700
+        assert not mesh.powered_off.exists()
+        assert keys.alive_key(v, "*") in await tokens(view)  # the access rules let it through ...
+        assert keys.alive_key(v, "*") not in await view.alive()  # ... the liveliness view does not list it
+        assert all(keys.alive_of(t) for t in await view.alive("*"))
+        token.undeclare()
+        follow.cancel()
+    dropped = [line for line in lines if "dropped a message sent to" in line]
+    assert any("icefloe/" + v + "/cmd/*" in line for line in dropped), dropped  # the line names the key
+    assert any("odom/*" in line or "odom/re$*" in line for line in dropped), dropped
+    for service in VICTIM_SERVICES:  # rate-limited: <= 10 lines a second each
+        stamps = sorted(t for t, line in stamped if line.startswith(f"{service}: dropped"))
+        assert all(b - a >= 1e9 for a, b in zip(stamps, stamps[10:], strict=False)), service
+
+
+async def _collect_logs(sub: Any, into: list[str], stamped: list[tuple[int, str]]) -> None:
+    async for log in sub:
+        into.append(f"{log.service}: {log.text}")
+        stamped.append((log.stamp, into[-1]))
+
+
+async def test_the_attack_forms_reach_a_robot_without_access_control(robot: Robot) -> None:
+    """The control for the matrix: without access control every form of it reaches the robot's
+    subscribers (so the matrix is no test of forms Zenoh drops anyway); typed subscriptions,
+    as every service reads commands, still take only the put on their own key."""
+    async with robot.node("service") as service, robot.node("student") as student:
+        raw = service.subscribe_raw(keys.key(robot.name, "**"))
+        typed = service.subscribe(keys.TWIST)
+        await asyncio.sleep(0.5)
+        forms = wildcard_forms(keys.key(robot.name, keys.TWIST))
+        for n, form in enumerate(forms):
+            student.session.put(form, codec.encode(m.Twist(v=0.1, w=float(n))), encoding=MSGPACK)
+        got: list[str] = []
+        while len(got) < len(forms):
+            got.append((await asyncio.wait_for(raw.__anext__(), 5)).key)
+        assert sorted(got) == forms
+        assert (await asyncio.wait_for(typed.__anext__(), 5)).w == forms.index(keys.key(robot.name, keys.TWIST))
+        assert typed.pending() == 0 and typed.rejected == len(forms) - 1
