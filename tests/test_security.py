@@ -12,8 +12,12 @@ run), what V's own sessions receive (no forged message, no query), the tokens V'
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
+import json
 import math
+import os
+import stat
 import subprocess
 import sys
 import time
@@ -30,8 +34,9 @@ from conftest import ROOT, Robot, free_port, wait_for
 
 from icefloe import config as config_mod
 from icefloe.client import AsyncRobot
+from icefloe.config import private_dir
 from icefloe.credentials import GUEST_PASSWORD, GUEST_USER, Credentials, read
-from icefloe.errors import NotReachable
+from icefloe.errors import ConfigError, NotReachable
 from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
@@ -476,3 +481,205 @@ async def test_the_attack_forms_reach_a_robot_without_access_control(robot: Robo
         assert sorted(got) == forms
         assert (await asyncio.wait_for(typed.__anext__(), 5)).w == forms.index(keys.key(robot.name, keys.TWIST))
         assert typed.pending() == 0 and typed.rejected == len(forms) - 1
+
+
+# ---------------------------------------------------------------------------- HTTP
+
+HTTP_COMMANDS = {
+    "/robot/set/velocity": {"value": "30,30"}, "/robot/stop": {}, "/robot/hw/reset": {},
+    "/robot/pose/reset": {}, "/motor/set/velocity": {"id": "0", "value": "30"}, "/hat/button/get": {},
+    "/hat/ledarray/set": {"value": "255"}, "/hat/screen/set": {"value": "2"},
+    "/hat/screen/print": {"value": "pwned"}, "/led/set/state": {"id": "2", "value": "1"},
+    "/led/set/count": {"id": "3", "value": "100"},
+}
+HTTP_READS = {"/robot/get/encoder": {}, "/motor/get/encoder": {"id": "0"}, "/battery/get/voltage": {},
+              "/battery/get/current": {}, "/hat/dip/get": {}}
+def basic(user: str, password: str) -> dict[str, str]:
+    """The header of HTTP Basic authentication (RFC 7617)."""
+    return {"Authorization": "Basic " + base64.b64encode(f"{user}:{password}".encode()).decode()}
+
+
+SENT_BY_WEBAPI = ("cmd/", "io/leds", "io/ledarray", "io/text", "io/screen", "odom/reset")
+
+
+@pytest.mark.slow
+async def test_http_changes_need_the_owners_credentials(mesh: Mesh) -> None:
+    """No, wrong, a guest's, or another robot's credentials: 401 and nothing on the bus; read
+    routes open; the owner's as pibot_client (requests) and PiBot.m (MATLAB's challenge) send them."""
+    import requests
+
+    v, own, other = mesh.victim, mesh.owner(mesh.victim), mesh.owner(mesh.other)
+    async with owner_laptop(mesh, v, mesh.robot_router(v)) as view:
+        truth = Truth(view, v)
+        sent: list[str] = []
+        sub = view.session.declare_subscriber(
+            keys.key(v, "**"), lambda s: sent.append(str(s.key_expr)) if keys.split(str(s.key_expr))[1]
+            .startswith(SENT_BY_WEBAPI) else None)
+        start = await truth.now()
+        async with aiohttp.ClientSession() as http:
+            wrong = [{}, basic(own.user, "not the password"), basic("guest", "guest"),
+                     basic(other.user, other.password), basic(own.user, ""), basic(own.user + "x", own.password),
+                     {"Authorization": "Basic !!not base64"}, {"Authorization": f"Digest {own.password}"}]
+            for path, params in HTTP_COMMANDS.items():
+                for auth in wrong:
+                    async with http.get(mesh.http + path, params=params, headers=auth) as r:
+                        assert r.status == 401, (path, auth, r.status, await r.text())
+                        assert r.headers["WWW-Authenticate"].startswith('Basic realm="icefloe robot'), path
+                        assert "message" in await r.json()
+            for path, params in HTTP_READS.items():  # what a guest may read over Zenoh, anyone may over HTTP
+                async with http.get(mesh.http + path, params=params) as r:
+                    assert r.status == 200, (path, await r.text())
+            await asyncio.sleep(1.0)
+            assert sent == [], f"refused requests sent {sent}"
+            assert await truth.moved_since(start) < STILL_M
+
+            # PiBot.m: MATLAB's webread (R2019b..R2025b) asks without credentials, then answers
+            # the 401's Basic challenge with the user and password of its weboptions.
+            async with http.get(f"{mesh.http}/robot/pose/reset") as first:
+                assert first.status == 401 and first.headers["WWW-Authenticate"].split()[0] == "Basic"
+            async with http.get(f"{mesh.http}/robot/pose/reset", headers=basic(own.user, own.password)) as r:
+                assert r.status == 200 and await r.text() == ""
+
+        # pibot_client.py, unchanged: PiBot(ip=f"{user}:{password}@{host}") makes its URLs
+        # http://user:password@host:8080/..., and requests sends them as Basic authentication.
+        endpoint = mesh.http.replace("http://", f"http://{own.user}:{own.password}@")
+
+        def pibot() -> list[Any]:
+            moved = requests.get(f"{endpoint}/robot/set/velocity?value=30,30")
+            led = requests.get(f"{endpoint}/led/set/state?id=2&value=1")
+            oled = requests.get(f"{endpoint}/hat/screen/print?value=hello")
+            return [moved.status_code, moved.json(), led.status_code, oled.status_code]
+
+        status, state, led, oled = await asyncio.to_thread(pibot)
+        assert (status, led, oled) == (200, 200, 200) and set(state) == {"encoder", "pose"}
+        await wait_for(lambda: truth.latest and math.hypot(truth.latest.x - start.x, truth.latest.y - start.y) > 0.02)
+        stop = await asyncio.to_thread(lambda: requests.get(f"{endpoint}/robot/stop", timeout=5))
+        assert stop.status_code == 200 and "encoder" in stop.json()
+        sub.undeclare()
+    assert any(k.endswith("cmd/wheels") for k in sent) and any(k.endswith("io/leds") for k in sent)
+    assert "wrong user or password" in mesh.lab.procs[v][-1].log.read_text()  # webapi said so, rate-limited
+
+
+# ---------------------------------------------------------------------------- logins and secrets
+
+
+@pytest.mark.slow
+def test_wrong_logins_cost_the_lab_router_nothing(mesh: Mesh) -> None:
+    """100 wrong passwords and 100 unknown users against the lab router: none let in, the router
+    keeps running at the same memory (bench/router_logins.py measures it next to right logins)."""
+    from lab_harness import cpu_seconds
+    from router_logins import attempt_logins, rss_kib
+
+    assert mesh.lab.router is not None
+    pid, own = mesh.lab.router.pid, mesh.owner(mesh.victim)
+    attempt_logins(mesh.lab_router, own.user, "warm-up", 5)  # first-use allocations, not the logins' cost
+    cpu0, rss0 = cpu_seconds(pid), rss_kib(pid)
+    assert attempt_logins(mesh.lab_router, own.user, "not the password", 100) == 0
+    assert attempt_logins(mesh.lab_router, "nobody", "nothing", 100) == 0
+    time.sleep(0.5)
+    cpu, grown = cpu_seconds(pid) - cpu0, rss_kib(pid) - rss0
+    print(f"\n200 wrong logins: lab router CPU {1000 * cpu:.0f} ms, RSS {rss0 / 1024:.1f} -> "
+          f"{rss_kib(pid) / 1024:.1f} MiB")
+    assert mesh.lab.router.alive()
+    assert attempt_logins(mesh.lab_router, own.user, own.password, 1) == 1
+    assert grown < 2048, f"the router grew {grown} KiB"
+    assert cpu < 2.0
+
+
+@pytest.mark.slow
+async def test_no_secret_leaves_the_robot(mesh: Mesh) -> None:
+    """Private run folders, no users file while running; no password in a command line, a log,
+    `icefloe config`, the info answer or anything on the bus."""
+    v = mesh.victim
+    passwords = [mesh.owner(name).password.encode() for name in mesh.lab.names]
+    for folder in (mesh.lab.root / "run-lab", *(mesh.lab.root / f"run-{name}" for name in mesh.lab.names)):
+        st = folder.stat()
+        assert stat.S_IMODE(st.st_mode) == 0o700 and st.st_uid == os.getuid(), folder
+        assert not (folder / "zenoh-users").exists(), f"{folder}: the users file outlived the router's start"
+    async with owner_laptop(mesh, v, mesh.lab_router) as owner:
+        heard: list[bytes] = []
+        sub = owner.session.declare_subscriber("icefloe/**", lambda s: heard.append(
+            str(s.key_expr).encode() + s.payload.to_bytes()))
+        async with aiohttp.ClientSession() as http, \
+                http.get(f"{mesh.http}/robot/stop", headers=basic(v, "guess")) as r:  # a wrong login: a log line
+            body = await r.read()
+            assert r.status == 401 and not [p for p in passwords if p in body]
+        info = await owner.query(keys.INFO)
+        assert not any(p.decode() in json.dumps(msgspec.to_builtins(info)) for p in passwords)
+        await asyncio.sleep(2.0)
+        sub.undeclare()
+    assert heard and not [h[:80] for h in heard if any(p in h for p in passwords)]
+    procs = [p for ps in mesh.lab.procs.values() for p in ps] + [mesh.lab.router]
+    for proc in procs:
+        assert proc is not None
+        cmdline = Path(f"/proc/{proc.pid}/cmdline").read_bytes()
+        log = proc.log.read_bytes()
+        assert not [p for p in passwords if p in cmdline or p in log], proc.name
+    shown = subprocess.run([sys.executable, "-m", "icefloe.cli", "config", str(mesh.lab.configs[v])],
+                           capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert shown.returncode == 0 and '"password": "***"' in shown.stdout
+    assert not [p for p in passwords if p.decode() in shown.stdout + shown.stderr]
+
+
+def test_a_link_planted_at_the_users_file_is_not_followed(tmp_path: Path) -> None:
+    """Someone made ``<run_dir>/zenoh-users`` a link to a file of theirs: the router neither
+    writes through it nor leaves a users file behind, and logins work."""
+    from icefloe.credentials import make
+
+    run, victim = tmp_path / "run", tmp_path / "precious.txt"
+    run.mkdir(mode=0o700)
+    victim.write_text("not yours\n")
+    victim.chmod(0o644)
+    (run / "zenoh-users").symlink_to(victim)
+    port = free_port()
+    creds_path, _ = make(tmp_path / "r.credentials", "linked", [f"tcp/127.0.0.1:{port}"])
+    config = tmp_path / "r.toml"
+    config.write_text(f'extends = "sim"\nname = "linked"\nrun_dir = "{run}"\n\n'
+                      f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
+                      f'access_control = true\ncredentials = "{creds_path}"\n')
+    router = subprocess.Popen([sys.executable, "-m", "icefloe.router", "--config", str(config)], cwd=ROOT,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert router.stdout is not None and "listening on" in router.stdout.readline()
+        assert victim.read_text() == "not yours\n" and stat.S_IMODE(victim.stat().st_mode) == 0o644
+        assert not (run / "zenoh-users").exists() and not (run / "zenoh-users").is_symlink()
+        from router_logins import attempt_logins
+
+        creds = read(creds_path)
+        assert attempt_logins(f"tcp/127.0.0.1:{port}", creds.user, creds.password, 1) == 1
+    finally:
+        router.terminate()
+        router.wait(10)
+
+
+def test_the_run_folder_is_private(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """By default under the user's own runtime folder (or <tmp>/icefloe-<uid>), made 0700; a
+    symlink or a folder of another user is refused, and nothing starts."""
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "xdg"))
+    assert config_mod.default_run_dir("r1") == tmp_path / "xdg" / "icefloe" / "r1"
+    monkeypatch.delenv("XDG_RUNTIME_DIR")
+    monkeypatch.setattr(config_mod.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    default = config_mod.default_run_dir("r1")
+    assert default == tmp_path / "tmp" / f"icefloe-{os.getuid()}" / "r1"
+    private_dir(default)
+    for folder in (default, default.parent):  # both ours and closed: nobody can swap r1 for a link
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    loose = tmp_path / "loose"
+    loose.mkdir(mode=0o755)
+    private_dir(loose)
+    assert stat.S_IMODE(loose.stat().st_mode) == 0o700
+    (tmp_path / "link").symlink_to(loose)
+    with pytest.raises(ConfigError, match="symlink"):
+        private_dir(tmp_path / "link")
+    if os.getuid() == 0:  # only root can make a folder that belongs to someone else
+        theirs = tmp_path / "theirs"
+        theirs.mkdir()
+        os.chown(theirs, 65534, 65534)
+        with pytest.raises(ConfigError, match="belongs to user 65534"):
+            private_dir(theirs)
+    config = tmp_path / "r.toml"
+    config.write_text(f'extends = "sim"\nname = "r1"\nrun_dir = "{tmp_path / "link"}"\n')
+    res = subprocess.run([sys.executable, "-m", "icefloe.services.info", "--config", str(config)],
+                         capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "symlink" in res.stderr, res.stderr

@@ -17,12 +17,13 @@ HTTP Basic is what the old clients send without a change (docs/webapi.md):
 
 from __future__ import annotations
 
+import base64
 import hmac
 import json
 import logging
 from collections.abc import Awaitable, Callable, Collection
 
-from aiohttp import BasicAuth, web
+from aiohttp import web
 
 from icefloe.runtime import LimitedLog
 
@@ -36,14 +37,17 @@ def owner_only(paths: Collection[str], user: str, password: str, robot: str) -> 
     wrong = LimitedLog(logging.getLogger("icefloe.webapi"))
 
     def matches(header: str) -> bool:
+        """``Authorization: Basic base64(user:password)`` (RFC 7617) with our user and password."""
+        scheme, _, encoded = header.partition(" ")
         try:
-            given = BasicAuth.decode(header, encoding="utf-8")
+            given = base64.b64decode(encoded.strip(), validate=True)
         except ValueError:
             return False
+        login, colon, secret = given.partition(b":")
         # Compare in constant time, both parts always, so the answer's timing tells nothing.
-        same_user = hmac.compare_digest(given.login.encode(), user.encode())
-        same_password = hmac.compare_digest(given.password.encode(), password.encode())
-        return same_user and same_password
+        same_user = hmac.compare_digest(login, user.encode())
+        same_password = hmac.compare_digest(secret, password.encode())
+        return scheme.lower() == "basic" and bool(colon) and same_user and same_password
 
     @web.middleware
     async def middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
