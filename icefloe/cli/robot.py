@@ -32,8 +32,7 @@ def up(args: argparse.Namespace) -> int:
 
 def sim_override(path: Path, cfg: RobotConfig) -> Path:
     """A config that extends ``path`` with the simulated board (for `up --sim`)."""
-    out = cfg.runtime_dir / "sim-override.toml"
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = config_mod.private_dir(cfg.runtime_dir) / "sim-override.toml"
     services = cfg.services if "sim" in cfg.services else ["sim", *cfg.services]
     out.write_text(f'extends = "{path.resolve()}"\nservices = {json.dumps(services)}\n\n'
                    '[board]\nbackend = "sim"\nserial_port = "{run_dir}/ttyPPI"\n')
