@@ -52,3 +52,34 @@ async def test_a_lab_router_keeps_robots_apart(tmp_path: Path) -> None:
     for r in robots.values():
         assert r.configured_hz == lab.config(r.name).odometry.rate_hz
         assert r.rate_hz >= lab_scale.MIN_RATE * r.configured_hz, (r.name, r.rate_hz, r.configured_hz)
+
+
+async def test_a_robot_router_joins_the_lab_router_whenever_it_is_up(tmp_path: Path) -> None:
+    """The robot boots before the lab machine, and the TA restarts the lab router after adding
+    a robot: each time, the robot's router (re)joins by itself."""
+    import asyncio
+    import time
+
+    from lab_harness import Lab
+    from lab_scale import guest_config
+
+    from icefloe.runtime import Node
+    from icefloe.schemas import keys
+
+    async def joined(lab: Lab, timeout: float = 30.0) -> None:
+        async with Node("laptop", guest_config(lab.endpoint), announce=False, retry=False) as guest:
+            deadline = time.monotonic() + timeout
+            while keys.alive_key(lab.names[0], "router") not in await guest.alive("*"):
+                assert time.monotonic() < deadline, "the robot's router did not join"
+                await asyncio.sleep(0.3)
+
+    with Lab(tmp_path, robots=1, mesh=True) as lab:
+        lab.start_robot(lab.names[0], services=[])  # its router only, before the lab router
+        await asyncio.sleep(1.0)
+        lab.start_router()
+        await joined(lab)
+        lab.router.interrupt()
+        assert lab.router.wait(10)
+        lab.start_router()
+        await joined(lab)
+    assert lab.killed == []
