@@ -557,6 +557,11 @@ async def test_http_changes_need_the_owners_credentials(mesh: Mesh) -> None:
         assert stop.status_code == 200 and "encoder" in stop.json()
         sub.undeclare()
     assert any(k.endswith("cmd/wheels") for k in sent) and any(k.endswith("io/leds") for k in sent)
+    # [webapi] host = "127.0.0.1": the web API listens on this machine's loopback only.
+    port = int(mesh.http.rsplit(":", 1)[1])
+    listening = [line.split()[1] for line in Path("/proc/net/tcp").read_text().splitlines()[1:]
+                 if line.split()[3] == "0A" and line.split()[1].endswith(f":{port:04X}")]
+    assert listening == [f"0100007F:{port:04X}"], listening
     assert "wrong user or password" in mesh.lab.procs[v][-1].log.read_text()  # webapi said so, rate-limited
 
 
