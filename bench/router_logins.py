@@ -19,11 +19,13 @@ of good logins costs. ``tests/test_security.py`` runs `attempt_logins` against a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import zenoh
@@ -68,37 +70,44 @@ def measure(pid: int, endpoint: str, user: str, password: str, n: int) -> dict[s
             "rss_kib": rss_kib(pid), "rss_growth_kib": rss_kib(pid) - rss0}
 
 
+@contextlib.contextmanager
+def guarded_router(root: Path, name: str) -> Iterator[tuple[subprocess.Popen[str], str, credentials.Credentials]]:
+    """A robot's router with access control (``icefloe.router``, run folder ``root/run``, a new
+    credentials file, a loopback port), running until the block ends: (process, endpoint, credentials)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    creds_path, _ = credentials.make(root / f"{name}.credentials", name, [endpoint])
+    config = root / f"{name}.toml"
+    config.write_text(f'extends = "{SIM_CONFIG}"\nname = "{name}"\nrun_dir = "{root / "run"}"\n\n'
+                      f'[zenoh]\nlisten = ["{endpoint}"]\nconnect = ["{endpoint}"]\n'
+                      f'access_control = true\ncredentials = "{creds_path}"\n')
+    router = subprocess.Popen([sys.executable, "-m", "icefloe.router", "--config", str(config)], cwd=ROOT,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert router.stdout is not None
+        line = router.stdout.readline()
+        if "listening on" not in line:
+            raise RuntimeError(f"the router did not start: {line}{router.stdout.read()}")
+        yield router, endpoint, credentials.read(creds_path)
+    finally:
+        router.terminate()
+        router.wait(10)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--logins", type=int, default=100)
     args = parser.parse_args()
     print(f"$ {' '.join([Path(sys.executable).name, *sys.argv])}")
-    with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp)
-        port = free_port()
-        endpoint = f"tcp/127.0.0.1:{port}"
-        creds_path, _ = credentials.make(root / "bench.credentials", "bench", [endpoint])
-        creds = credentials.read(creds_path)
-        config = root / "bench.toml"
-        config.write_text(f'extends = "{SIM_CONFIG}"\nname = "bench"\nrun_dir = "{root / "run"}"\n\n'
-                          f'[zenoh]\nlisten = ["{endpoint}"]\nconnect = ["{endpoint}"]\n'
-                          f'access_control = true\ncredentials = "{creds_path}"\n')
-        router = subprocess.Popen([sys.executable, "-m", "icefloe.router", "--config", str(config)], cwd=ROOT,
-                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        try:
-            assert router.stdout is not None and "listening on" in router.stdout.readline()
-            time.sleep(1.0)
-            start = rss_kib(router.pid)
-            runs = {  # the wrong ones first: they get the router cold, with any first-use growth
-                "wrong password": measure(router.pid, endpoint, creds.user, "not the password", args.logins),
-                "unknown user": measure(router.pid, endpoint, "nobody", "nothing", args.logins),
-                "right password (reference)": measure(router.pid, endpoint, creds.user, creds.password, args.logins),
-            }
-            alive = router.poll() is None
-            still_in = attempt_logins(endpoint, creds.user, creds.password, 1) == 1
-        finally:
-            router.terminate()
-            router.wait(10)
+    with tempfile.TemporaryDirectory() as tmp, guarded_router(Path(tmp), "bench") as (router, endpoint, creds):
+        time.sleep(1.0)
+        start = rss_kib(router.pid)
+        runs = {  # the wrong ones first: they get the router cold, with any first-use growth
+            "wrong password": measure(router.pid, endpoint, creds.user, "not the password", args.logins),
+            "unknown user": measure(router.pid, endpoint, "nobody", "nothing", args.logins),
+            "right password (reference)": measure(router.pid, endpoint, creds.user, creds.password, args.logins),
+        }
+        alive = router.poll() is None
+        still_in = attempt_logins(endpoint, creds.user, creds.password, 1) == 1
     print(f"router RSS at start: {start / 1024:.1f} MiB; {args.logins} logins per run, one after the other\n")
     print(f"{'logins':<28} {'let in':>7} {'took s':>7} {'router CPU ms':>14} {'per login ms':>13} "
           f"{'router RSS MiB':>15} {'RSS growth KiB':>15}")

@@ -629,32 +629,17 @@ async def test_no_secret_leaves_the_robot(mesh: Mesh) -> None:
 def test_a_link_planted_at_the_users_file_is_not_followed(tmp_path: Path) -> None:
     """Someone made ``<run_dir>/zenoh-users`` a link to a file of theirs: the router neither
     writes through it nor leaves a users file behind, and logins work."""
-    from icefloe.credentials import make
+    from router_logins import attempt_logins, guarded_router
 
     run, victim = tmp_path / "run", tmp_path / "precious.txt"
     run.mkdir(mode=0o700)
     victim.write_text("not yours\n")
     victim.chmod(0o644)
     (run / "zenoh-users").symlink_to(victim)
-    port = free_port()
-    creds_path, _ = make(tmp_path / "r.credentials", "linked", [f"tcp/127.0.0.1:{port}"])
-    config = tmp_path / "r.toml"
-    config.write_text(f'extends = "sim"\nname = "linked"\nrun_dir = "{run}"\n\n'
-                      f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-                      f'access_control = true\ncredentials = "{creds_path}"\n')
-    router = subprocess.Popen([sys.executable, "-m", "icefloe.router", "--config", str(config)], cwd=ROOT,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        assert router.stdout is not None and "listening on" in router.stdout.readline()
+    with guarded_router(tmp_path, "linked") as (_router, endpoint, creds):
         assert victim.read_text() == "not yours\n" and stat.S_IMODE(victim.stat().st_mode) == 0o644
         assert not (run / "zenoh-users").exists() and not (run / "zenoh-users").is_symlink()
-        from router_logins import attempt_logins
-
-        creds = read(creds_path)
-        assert attempt_logins(f"tcp/127.0.0.1:{port}", creds.user, creds.password, 1) == 1
-    finally:
-        router.terminate()
-        router.wait(10)
+        assert attempt_logins(endpoint, creds.user, creds.password, 1) == 1
 
 
 def test_the_run_folder_is_private(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
