@@ -135,6 +135,17 @@ class Truth:
         assert self.latest is not None
         return self.latest
 
+    async def stands_still(self, timeout: float = 10.0) -> None:
+        """Until the robot has not moved for half a second (simulated time: it lags on a busy machine)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            before = await self.now()
+            later = before.stamp + 500_000_000
+            await wait_for(lambda later=later: self.latest is not None and self.latest.stamp >= later)
+            if await self.moved_since(before) < STILL_M:
+                return
+            assert time.monotonic() < deadline, "the robot did not stop"
+
     async def moved_since(self, before: m.Truth) -> float:
         after = await self.now()
         return math.hypot(after.x - before.x, after.y - before.y)
@@ -391,10 +402,7 @@ async def test_the_owner_does_everything_through_the_lab_router(mesh: Mesh, tmp_
         await robot.set_velocity(0.15, 0.15)  # held until the next command
         await wait_for(lambda: truth.latest and math.hypot(truth.latest.x - start.x, truth.latest.y - start.y) > 0.05)
         await robot.stop()
-        await asyncio.sleep(0.5)
-        stopped = await truth.now()
-        await asyncio.sleep(0.5)
-        assert await truth.moved_since(stopped) < STILL_M  # stopped means stopped
+        await truth.stands_still()
         done = await robot.set_velocity(0.1, 0.1, duration=0.5)  # cmd/motion, answered when over
         assert done is not None and done.completed
         assert (await robot.reset_pose(x=0.5)).x == 0.5
