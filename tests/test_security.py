@@ -47,6 +47,8 @@ from lab_harness import Lab
 VICTIM_SERVICES = ("sim", "hwbridge", "odometry", "power", "info", "webapi")
 STILL_M = 0.002
 """A robot nobody may drive moves less than this (the simulator adds no noise), m."""
+QUERY_S = 5.0
+"""How long an attacker's query waits for answers (all of them wait at once), s."""
 
 
 # ---------------------------------------------------------------------------- the lab
@@ -230,11 +232,11 @@ async def attack(matrix: Matrix, name: str, session: zenoh.Session, spare: zenoh
             payload = codec.encode(command_request(topic, n()))
             what = f"{name}: query {form}"
             matrix.attempt(what, payload)
-            pending.append((what, session.get(form, payload=payload, encoding=MSGPACK, timeout=2.0)))
+            pending.append((what, session.get(form, payload=payload, encoding=MSGPACK, timeout=QUERY_S)))
     for form in wildcard_forms(keys.key(victim, keys.INFO)):
         what = f"{name}: query {form}"
         matrix.attempt(what)
-        pending.append((what, session.get(form, timeout=2.0)))
+        pending.append((what, session.get(form, timeout=QUERY_S)))
     for topic in (keys.INFO, keys.SNAPSHOT):
         for form in wildcard_forms(keys.key(victim, topic)):
             matrix.attempt(f"{name}: declare queryable {form}")
@@ -264,12 +266,12 @@ class RobotView:
         victim = node.robot
         self.samples: list[str] = []
         self.queries: list[str] = []
-        self.marker_seen = False
+        self.markers = 0
 
         def on_sample(s: zenoh.Sample) -> None:
             key, payload = str(s.key_expr), s.payload.to_bytes()
             if payload == self.MARKER:
-                self.marker_seen = True
+                self.markers += 1
             elif s.kind == zenoh.SampleKind.DELETE or not keys.is_concrete(key) or payload in matrix.payloads:
                 self.samples.append(f"{s.kind} {key} from {matrix.payloads.get(payload, '?')}")
 
@@ -334,6 +336,9 @@ async def test_zenoh_attacks_are_refused_on_every_router(mesh: Mesh) -> None:
         for node in sessions.values():
             await asyncio.wait_for(node.subscribe(keys.ODOM_POSE, robot=v).__anext__(), 15)
         view = RobotView(robot, matrix)
+        # The view's subscription has reached the lab router once the owner's marker comes back.
+        owner.session.put(keys.key(v, "security/marker"), RobotView.MARKER)
+        await wait_for(lambda: view.markers == 1, timeout=10)
         start = await truth.now()
         pending = []
         for name, node in sessions.items():
@@ -342,7 +347,7 @@ async def test_zenoh_attacks_are_refused_on_every_router(mesh: Mesh) -> None:
 
         # A control through the same routers: what V's owner sends on the lab router arrives.
         owner.session.put(keys.key(v, "security/marker"), RobotView.MARKER)
-        await wait_for(lambda: view.marker_seen, timeout=5)
+        await wait_for(lambda: view.markers == 2, timeout=10)
         await asyncio.sleep(1.0)  # anything still on its way arrives now
         # The subscriptions included in icefloe/** hear V; the others (outside it) are refused.
         for what, count in matrix.received.items():
