@@ -83,6 +83,9 @@ def owners_of(config: RobotConfig) -> list[Owner]:
         where = config.zenoh.credentials or "(zenoh.credentials is not set)"
         raise ConfigError(f"{config.source}: zenoh.access_control is on but there are no credentials "
                           f"at {where}: run `icefloe credentials {config.source}`")
+    if config.zenoh.user == GUEST_USER:
+        raise ConfigError(f"{config.source}: the robot's user may not be {GUEST_USER!r}: that is everybody's "
+                          "read-only login (rename the robot, then `icefloe credentials --replace`)")
     return [Owner(config.name, config.zenoh.user, config.zenoh.password)]
 
 

@@ -686,3 +686,15 @@ def test_the_run_folder_is_private(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     res = subprocess.run([sys.executable, "-m", "icefloe.services.info", "--config", str(config)],
                          capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "symlink" in res.stderr, res.stderr
+
+
+def test_a_robot_called_guest_gets_no_router(tmp_path: Path) -> None:
+    """Its user would be the public read-only login: everybody would own it."""
+    from icefloe import router
+    from icefloe.credentials import make
+
+    creds, _ = make(tmp_path / "guest.credentials", "guest")
+    config = tmp_path / "guest.toml"
+    config.write_text(f'extends = "sim"\nname = "guest"\n[zenoh]\naccess_control = true\ncredentials = "{creds}"\n')
+    with pytest.raises(ConfigError, match="may not be 'guest'"):
+        router.owners_of(config_mod.load(config))
