@@ -30,7 +30,7 @@ from pathlib import Path
 import zenoh
 
 from . import paths
-from .config import RobotConfig, check_lab, private_dir
+from .config import RobotConfig, check_lab, private_dir, protocol
 from .credentials import GUEST_PASSWORD, GUEST_USER
 from .errors import ConfigError
 from .runtime import run, zenoh_config
@@ -100,7 +100,7 @@ def router_config(config: RobotConfig, owners: Sequence[Owner], users_file: Path
         if users_file is None:
             raise ValueError("access control needs the users file (write_users)")
         zc.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(users_file)))
-        lab = [e.split("/", 1)[0] for e in config.zenoh.lab]
+        lab = [protocol(e) for e in config.zenoh.lab]
         zc.insert_json5("access_control", json.dumps(access_control([(o.robot, o.user) for o in owners], lab)))
     return zc
 
