@@ -10,6 +10,7 @@ robot heard); the rate check is relative to each robot's own configured rate.
 
 from __future__ import annotations
 
+import shutil
 import sys
 from pathlib import Path
 
@@ -83,3 +84,69 @@ async def test_a_robot_router_joins_the_lab_router_whenever_it_is_up(tmp_path: P
         lab.start_router()
         await joined(lab)
     assert lab.killed == []
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is not installed")
+async def test_a_robot_router_joins_its_lab_over_tls(tmp_path: Path) -> None:
+    """`lab = ["tls/..."]`: the robot's router checks the lab router's certificate (no one can pose
+    as the lab machine) and the lab link is recognised by its protocol, tls, as it is by ws."""
+    import asyncio
+    import contextlib
+    import time
+
+    from conftest import free_port
+    from lab_harness import SIM_CONFIG, Proc, _wait_listening
+    from lab_scale import guest_config, laptop_config
+    from test_access import make_certificates
+
+    from icefloe import config as config_mod
+    from icefloe.credentials import make
+    from icefloe.runtime import Node
+    from icefloe.schemas import keys
+    from icefloe.schemas import messages as m
+
+    make_certificates(tmp_path)  # a lab CA, and a certificate for localhost
+    laptops, uplink, robot_port = free_port(), free_port(), free_port()
+    creds, _ = make(tmp_path / "lab" / "tlsbot.credentials", "tlsbot")
+    (tmp_path / "lab.toml").write_text(
+        f'name = "lab"\nrun_dir = "{tmp_path / "run-lab"}"\n[zenoh]\n'
+        f'listen = ["tcp/127.0.0.1:{laptops}", "tls/127.0.0.1:{uplink}"]\nconnect = []\n'
+        f'tls_certificate = "{tmp_path}/robot.pem"\ntls_private_key = "{tmp_path}/robot.key"\n')
+    (tmp_path / "tlsbot.toml").write_text(
+        f'extends = "{SIM_CONFIG}"\nname = "tlsbot"\nrun_dir = "{tmp_path / "run-bot"}"\n[zenoh]\n'
+        f'listen = ["tcp/127.0.0.1:{robot_port}"]\nconnect = ["tcp/127.0.0.1:{robot_port}"]\n'
+        f'lab = ["tls/localhost:{uplink}"]\ntls_root_ca = "{tmp_path}/ca.pem"\n'
+        f'access_control = true\ncredentials = "{creds}"\n')
+    lab = Proc("lab router", [sys.executable, "-m", "icefloe.cli", "router", str(tmp_path / "lab.toml"),
+                              "--lab", str(tmp_path / "lab")], tmp_path / "lab.log")
+    bot = Proc("tlsbot/router", [sys.executable, "-m", "icefloe.router", "--config", str(tmp_path / "tlsbot.toml")],
+               tmp_path / "tlsbot.log")
+    try:
+        _wait_listening(lab, 20)
+        _wait_listening(bot, 20)
+        robot = config_mod.load(tmp_path / "tlsbot.toml")
+        endpoint = f"tcp/127.0.0.1:{laptops}"
+        async with Node("hwbridge-stand-in", robot) as service, \
+                Node("laptop", laptop_config(creds, endpoint), announce=False) as owner, \
+                Node("laptop", guest_config(endpoint), announce=False) as guest:
+            twists = service.subscribe(keys.TWIST)
+            deadline = time.monotonic() + 30
+            while keys.alive_key("tlsbot", "hwbridge-stand-in") not in await guest.alive("*"):
+                assert time.monotonic() < deadline, f"not joined:\n{bot.tail()}"
+                await asyncio.sleep(0.3)
+            pub = owner.publisher(keys.TWIST)
+            for _ in range(50):  # until the twist arrives through the lab router and the tls link
+                pub.put(m.Twist(v=0.1, w=0.0))
+                with contextlib.suppress(TimeoutError):
+                    assert (await asyncio.wait_for(twists.__anext__(), 0.2)).v == 0.1
+                    break
+            else:
+                raise AssertionError("the owner's twist did not reach the robot over the tls lab link")
+            guest.session.put(keys.key("tlsbot", keys.TWIST), b'{"v": 0.3, "w": 0}')  # and the guest's did not
+            await asyncio.sleep(1.0)
+            while twists.pending():
+                assert (await twists.__anext__()).v == 0.1
+    finally:
+        for proc in (bot, lab):
+            proc.interrupt()
+            proc.wait(10)
