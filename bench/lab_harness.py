@@ -235,22 +235,32 @@ class Lab:
         _wait_listening(self.router, timeout)
         return self.router
 
-    def start_robots(self) -> None:
+    def start_robots(self, timeout: float = 60.0) -> None:
+        """Every robot: first all robots' routers (mesh; all start at once), then their services."""
+        if self.mesh:
+            routers = [self._start_robot_router(name) for name in self.names]
+            for router in routers:
+                _wait_listening(router, timeout)
         for name in self.names:
-            self.start_robot(name)
+            self._start_services(name, self.services)
 
     def start_robot(self, name: str, services: Sequence[str] | None = None, timeout: float = 20.0) -> None:
         """The robot's own router (mesh; waits until it listens) and its services' processes."""
-        procs = self.procs.setdefault(name, [])
-        config = str(self.configs[name])
         if self.mesh:
-            router = Proc(f"{name}/router", [sys.executable, "-m", "icefloe.router", "--config", config],
-                          self.root / f"{name}-router.log")
-            procs.append(router)
-            _wait_listening(router, timeout)
-        procs += [Proc(f"{name}/{service}", [sys.executable, "-m", f"icefloe.services.{service}",
-                                             "--config", config], self.root / f"{name}-{service}.log")
-                  for service in (self.services if services is None else services)]
+            _wait_listening(self._start_robot_router(name), timeout)
+        self._start_services(name, self.services if services is None else services)
+
+    def _start_robot_router(self, name: str) -> Proc:
+        router = Proc(f"{name}/router", [sys.executable, "-m", "icefloe.router", "--config", str(self.configs[name])],
+                      self.root / f"{name}-router.log")
+        self.procs.setdefault(name, []).append(router)
+        return router
+
+    def _start_services(self, name: str, services: Sequence[str]) -> None:
+        self.procs.setdefault(name, []).extend(
+            Proc(f"{name}/{service}", [sys.executable, "-m", f"icefloe.services.{service}",
+                                       "--config", str(self.configs[name])], self.root / f"{name}-{service}.log")
+            for service in services)
 
     def robot_pids(self) -> dict[str, list[int]]:
         """Robot process ids by service (a robot's router is ``router``), hwbridge's real-time
