@@ -405,6 +405,8 @@ async def test_the_owner_does_everything_through_the_lab_router(mesh: Mesh, tmp_
     viz = subprocess.Popen([sys.executable, "-m", "icefloe.services.viz", "--connect", mesh.lab_router,
                             "--save", str(out), "--duration", "8"], cwd=ROOT, text=True,
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    status = subprocess.Popen([sys.executable, "-m", "icefloe.cli", "status", "--connect", mesh.lab_router],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
     async with AsyncRobot(credentials=mesh.lab.credentials_file(v), connect=mesh.lab_router) as robot, \
             owner_laptop(mesh, v, mesh.robot_router(v)) as view:
         truth = Truth(view, v)
@@ -420,10 +422,9 @@ async def test_the_owner_does_everything_through_the_lab_router(mesh: Mesh, tmp_
         await wait_for(lambda: robot.pose is not None and abs(robot.pose.x - 0.5) < 0.01)
         info = await robot.node.query(keys.INFO)
         assert info.name == v
-    status = subprocess.run([sys.executable, "-m", "icefloe.cli", "status", "--connect", mesh.lab_router],
-                            capture_output=True, text=True, cwd=ROOT, timeout=60)
-    line = next(x for x in status.stdout.splitlines() if x.startswith(f"{v}:"))
-    assert set(line.split()[1:]) >= {*VICTIM_SERVICES, "router"}, status.stdout
+    listed, _ = status.communicate(timeout=60)
+    line = next(x for x in listed.splitlines() if x.startswith(f"{v}:"))
+    assert set(line.split()[1:]) >= {*VICTIM_SERVICES, "router"}, listed
     output, _ = viz.communicate(timeout=60)
     assert f"showing robot {v!r}" in output, output
     from icefloe.services.viz.readback import read_rrd
