@@ -40,13 +40,17 @@ import zenoh
 from . import config as config_mod
 from .config import RobotConfig
 from .credentials import read as read_credentials
-from .errors import ConfigError, NotReachable
-from .runtime import Node, open_session
+from .errors import ConfigError, IcefloeError, NotReachable
+from .runtime import Node, open_session, why_unreachable
 from .schemas import keys
 from .schemas import messages as m
 from .schemas.keys import Topic
 
 T = TypeVar("T")
+
+CONNECT_TIMEOUT = 1.0
+"""How long `AsyncRobot.open` retries a router that does not answer, by default, s: long enough
+for a router that is starting, short enough that a script run without a robot says so at once."""
 
 
 class Encoders(NamedTuple):
@@ -183,11 +187,13 @@ class AsyncRobot:
     # ------------------------------------------------------------------ connection
 
     async def open(self, connect_timeout: float | None = None) -> AsyncRobot:
-        """Connect to the robot's router; `NotReachable` naming the endpoint after
-        ``connect_timeout`` s (default: ``timeout``; ``math.inf``: wait for good, as a service does).
+        """Connect to the robot's router; `NotReachable` naming the endpoint and the likely fix after
+        ``connect_timeout`` s (default: ``timeout``, at most `CONNECT_TIMEOUT`; ``math.inf``: wait
+        for good, as a service does).
         """
         endpoints = ", ".join(self.config.zenoh.connect)
-        connect_timeout = self.timeout if connect_timeout is None else connect_timeout
+        if connect_timeout is None:
+            connect_timeout = min(self.timeout, CONNECT_TIMEOUT)
         deadline = time.monotonic() + connect_timeout
         while True:  # the router may be starting (robot just booted): retry until the deadline
             try:
@@ -196,8 +202,9 @@ class AsyncRobot:
                 break
             except NotReachable:
                 if time.monotonic() > deadline:
+                    why = why_unreachable(self.config, self.config.zenoh.connect)
                     raise NotReachable(f"robot {self.name!r}: no Zenoh router answers at {endpoints} "
-                                       f"within {connect_timeout} s") from None
+                                       f"within {connect_timeout} s: {why}") from None
                 await asyncio.sleep(0.2)
         await self.node.__aenter__()  # the router answers: this opens at once
         self._wheels = self.node.publisher(keys.WHEELS_CMD)
@@ -454,7 +461,12 @@ class Robot:
             raise
 
     def _call(self, coro: Coroutine[Any, Any, T]) -> T:
-        return asyncio.run_coroutine_threadsafe(coro, self._loop).result()
+        try:
+            return asyncio.run_coroutine_threadsafe(coro, self._loop).result()
+        except IcefloeError as exc:
+            # Raised again here, without the frames of the robot's own thread: the student's
+            # traceback ends at their own call, with our message.
+            raise type(exc)(*exc.args) from None
 
     @property
     def _r(self) -> AsyncRobot:

@@ -94,6 +94,8 @@ def router_config(config: RobotConfig, owners: Sequence[Owner], users_file: Path
     there are any, their passwords in ``users_file`` (`write_users`); joined to the lab router
     of ``[zenoh] lab`` if there is one, logged in there with the robot's own credentials."""
     zc = zenoh_config(config, mode="router", listen=config.zenoh.listen, connect=config.zenoh.lab)
+    # Read-only admin space: who declared what (`icefloe topics -v`, `info`, `services`; icefloe/graph.py).
+    zc.insert_json5("adminspace", '{"enabled": true, "permissions": {"read": true, "write": false}}')
     listen = json.loads(zc.get_json("listen/endpoints"))  # the extra config file may add some
     check_lab(config.zenoh, listen if isinstance(listen, list) else [], config.source)
     if owners:

@@ -53,7 +53,7 @@ import zenoh
 from . import config as config_mod
 from .config import RobotConfig
 from .credentials import GUEST_PASSWORD, GUEST_USER
-from .errors import BadPayload, ConfigError, NotReachable
+from .errors import BadPayload, ConfigError, IcefloeError, NotReachable
 from .schemas import codec, keys
 from .schemas.keys import Topic
 from .schemas.messages import Log, Message
@@ -518,6 +518,35 @@ def raw_session(config: RobotConfig) -> zenoh.Session:
         return zenoh.open(zenoh_config(config, connect=config.zenoh.connect))
 
 
+def listening(endpoint: str, timeout: float = 1.0) -> bool:
+    """Does anything accept a TCP connection at a Zenoh endpoint (``tcp/host:port``, ``tls/...``)?
+    True for other kinds of endpoints, which we cannot probe."""
+    import socket
+
+    proto, _, address = endpoint.partition("/")
+    if proto not in ("tcp", "tls"):
+        return True
+    host, _, port = address.split("#", 1)[0].rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+def why_unreachable(config: RobotConfig, endpoints: Sequence[str]) -> str:
+    """One line saying why a session could not open, and what to do (Zenoh only says
+    "Unable to connect", with a path in its Rust source, whatever the reason)."""
+    if not any(listening(e) for e in endpoints):
+        return ("nothing listens there. Is the robot up? `./deploy/up.sh` runs the simulated one; for a "
+                "real robot give its address (--connect tcp/<robot-ip>:7447, or Robot(connect=...))")
+    if config.zenoh.user:
+        return (f"the router refused user {config.zenoh.user!r}: wrong credentials? (ask the robot's owner "
+                "for its credentials file, made by `icefloe credentials --sheet`, and give --credentials FILE)")
+    return ("the router refused the session: it wants a user and password "
+            "(give --credentials FILE, the robot's credentials file), or it is not a Zenoh router")
+
+
 async def open_session(config: RobotConfig, *, mode: str = "client", log: logging.Logger | None = None,
                        retry: bool = True) -> zenoh.Session:
     """Open a Zenoh session to the robot's router, retrying while it is not up yet."""
@@ -528,7 +557,7 @@ async def open_session(config: RobotConfig, *, mode: str = "client", log: loggin
         try:
             zc = zenoh_config(config, mode=mode, connect=endpoints)
             return await asyncio.to_thread(zenoh.open, zc)
-        except zenoh.ZError as exc:
+        except zenoh.ZError:
             if not config.zenoh.user and not config.zenoh.access_control:
                 # Perhaps the robot requires credentials: try the read-only guest once.
                 with contextlib.suppress(zenoh.ZError):
@@ -538,7 +567,8 @@ async def open_session(config: RobotConfig, *, mode: str = "client", log: loggin
                                 GUEST_USER)
                     return session
             if not retry:
-                raise NotReachable(f"cannot reach a Zenoh router at {', '.join(endpoints)}: {exc}") from None
+                raise NotReachable(f"cannot reach a Zenoh router at {', '.join(endpoints)}: "
+                                   f"{why_unreachable(config, endpoints)}") from None
             if delay >= 1.0:
                 log.warning("cannot reach a Zenoh router at %s yet; retrying", ", ".join(endpoints))
             await asyncio.sleep(delay)
@@ -565,6 +595,11 @@ def load_config(args: argparse.Namespace) -> RobotConfig:
     return cfg
 
 
+CANNOT_START = 2
+"""Exit status of a service that cannot start as configured (the same as a bad config):
+it says why in one line, and restarting it will not help."""
+
+
 def run_async(coro: Coroutine[Any, Any, T2]) -> T2:
     """``asyncio.run``, on uvloop where it is installed: it halves the hop from Zenoh's
     threads into the loop (bench/runtime_latency.py measures it)."""
@@ -575,11 +610,22 @@ def run_async(coro: Coroutine[Any, Any, T2]) -> T2:
     return uvloop.run(coro)
 
 
+def process_name() -> str:
+    """``icefloe <service>`` for ``python -m icefloe.services.<service>`` (or the router), else ``icefloe``."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    module = spec.name.removesuffix(".__main__") if spec else ""
+    if module.startswith("icefloe.services.") or module == "icefloe.router":
+        return f"icefloe {module.rsplit('.', 1)[-1]}"
+    return "icefloe"
+
+
 def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str] | None = None,
         description: str | None = None) -> None:
     """Run a service's ``main(config)`` until it returns or SIGINT/SIGTERM arrives.
 
     A non-zero int returned by ``main`` becomes the process's exit status (a signal exits 0).
+    An `IcefloeError` (a bad config, a missing device, a port in use, named in its message) is
+    printed as one line and exits with `CANNOT_START`: restarting will not help.
     """
     args = arguments(description or main.__module__, argv)
     logging.basicConfig(stream=sys.stderr, level=args.log_level.upper(),
@@ -589,7 +635,7 @@ def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str
         config_mod.private_dir(cfg.runtime_dir)  # sockets, ptys, the router's password file: ours only
     except ConfigError as exc:
         print(f"icefloe: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+        raise SystemExit(CANNOT_START) from None
 
     async def supervised() -> int | None:
         loop = asyncio.get_running_loop()
@@ -601,7 +647,11 @@ def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str
             return await main(cfg)
         except asyncio.CancelledError:
             return 0
+        except IcefloeError as exc:  # could not start or go on: one line that says why, no traceback
+            print(f"{service}: {exc}", file=sys.stderr, flush=True)
+            return CANNOT_START
 
+    service = process_name()
     status = run_async(supervised())
     if status:
         raise SystemExit(status)

@@ -192,6 +192,12 @@ class LoopStats(Message):
     """Bytes that were neither a frame nor board text, since start."""
     board_errors: int = 0
     """Errors the board reported itself (PenguinPi ``ERR:`` lines, icoBoard REJECTED), since start."""
+    stalled_reads: int = 0
+    """Reads of the shared memory between hwbridge's two processes that found the other one in the
+    middle of a write on every try and were put off, since start: the bus process reading the cycle's
+    state (it tries again after a back-off) plus the cycle reading the commands (that period stops
+    the wheels). Above 0, one of the two was descheduled mid-write: the machine is short of CPU
+    for them (no SCHED_FIFO, or many robots on one machine)."""
 
 
 class BatteryReading(Message):

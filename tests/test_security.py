@@ -37,6 +37,7 @@ from icefloe.client import AsyncRobot
 from icefloe.config import private_dir
 from icefloe.credentials import GUEST_PASSWORD, GUEST_USER, Credentials, read
 from icefloe.errors import ConfigError, NotReachable
+from icefloe.graph import read as read_graph
 from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
@@ -390,6 +391,10 @@ async def test_zenoh_attacks_are_refused_on_every_router(mesh: Mesh) -> None:
     async with aiohttp.ClientSession() as http, http.get(f"{mesh.http}/hat/dip/get") as r:
         assert (await r.text()) != "13"  # sim/control's set_dip never ran
     assert mesh.lab.dead() == [], mesh.lab.dead()
+    async with laptop(mesh.robot_router(v)) as guest:  # the admin space is read-only, and readable
+        graph = await read_graph(guest.session, timeout=3.0)
+    assert graph.routers == 1 and f"{v}/hwbridge" in graph.names().values(), graph
+    assert not [d for ds in graph.by_session.values() for d in ds if "fake" in d.key_expr]
     print(f"\nattack matrix: {len(matrix.attempts)} attempts by {len(attackers)} attackers "
           f"({len(matrix.attempts) // len(attackers)} each); none reached {v}")
 
