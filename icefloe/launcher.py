@@ -9,10 +9,16 @@ gets the simulator.
 The router starts first (every service is a client of it), then the services
 listed in the robot config, in order. Each child's output is prefixed with its
 name. A child that dies is restarted with back-off (1 s, 2 s, 4 s ... 30 s; the
-back-off resets once it has run for a minute), except one that exits with
-`EXIT_CONFIG` (it refused the config: starting it again cannot help): then the
-whole robot stops, saying so. Ctrl-C (or SIGTERM) stops the services in reverse
-order with SIGINT, waits, and kills what is left, so no process stays behind.
+back-off resets once it has run for a minute), except:
+
+* one that exits with `EXIT_CONFIG` (78: it refused the config; starting it again cannot help):
+  then the whole robot stops, saying so;
+* one that exits 0 (it is done, e.g. the viewer was closed) or `CANNOT_START` (2: it cannot
+  start here, a missing device or a port in use, and said why): it is not restarted.
+
+Ctrl-C (or SIGTERM) stops the services in reverse order with SIGTERM (a service exits
+cleanly, as on Ctrl-C; one still starting up just ends, without a traceback from the middle
+of an import), waits, and kills what is left, so no process stays behind.
 """
 
 from __future__ import annotations
@@ -31,8 +37,11 @@ from pathlib import Path
 
 from .config import RobotConfig
 from .errors import EXIT_CONFIG, ConfigError
-from .runtime import run_async
+from .runtime import CANNOT_START, run_async
 
+DONE = {0: "finished", CANNOT_START: "it cannot start as configured (see above)"}
+"""Exit statuses after which a child is not restarted (like systemd's Restart=on-failure with
+RestartPreventExitStatus=2). `EXIT_CONFIG` stops the whole robot."""
 STOP_TIMEOUT = 8.0
 MAX_BACKOFF = 30.0
 HEALTHY_AFTER = 60.0
@@ -115,6 +124,9 @@ class Launcher:
                 self.refused = child.name
                 self._stop.set()
                 return
+            if code in DONE:  # it chose to end (the viewer was closed), or says restarting cannot help
+                self.say(child.name, f"exited with code {code}: {DONE[code]}; not restarting it")
+                return
             if time.monotonic() - child.started > HEALTHY_AFTER:
                 child.backoff = 1.0
             self.say(child.name, f"exited with code {code}; restarting in {child.backoff:.0f} s")
@@ -154,13 +166,13 @@ class Launcher:
         await asyncio.gather(*tasks, return_exceptions=True)
 
     async def stop(self) -> None:
-        """SIGINT to the services in reverse order (router last), then SIGKILL what remains."""
+        """SIGTERM to the services in reverse order (router last), then SIGKILL what remains."""
         self._stopping = True
         self.say("up", "stopping")
         for child in reversed(self.children):
             if child.process and child.process.returncode is None:
                 with contextlib.suppress(ProcessLookupError):
-                    child.process.send_signal(signal.SIGINT)
+                    child.process.send_signal(signal.SIGTERM)
                 try:
                     await asyncio.wait_for(child.process.wait(), STOP_TIMEOUT)
                 except TimeoutError:
@@ -213,7 +225,7 @@ def problems(config: RobotConfig, services: Sequence[str]) -> list[str]:
     depends on the machine and on the files the services read: credentials, a real board's
     devices, world maps, the camera's calibration, the simulator's device paths.
     """
-    from .router import check_credentials
+    from .router import check_router
     from .worldmap import load_world
 
     found: list[str] = []
@@ -224,7 +236,6 @@ def problems(config: RobotConfig, services: Sequence[str]) -> list[str]:
         except ConfigError as exc:
             found.append(str(exc))
 
-    check(lambda: check_credentials(config))
     b = config.board
     if "hwbridge" in services and b.backend == "hardware":
         key, path = ("serial_port", b.serial_port) if b.kind == "penguinpi" else ("spi_device", b.spi_device)
@@ -250,6 +261,8 @@ def problems(config: RobotConfig, services: Sequence[str]) -> list[str]:
         path = getattr(z, key)
         if path and not Path(path).expanduser().is_file():
             found.append(f"{config.source}: zenoh.{key}: {path}: no such file")
+    if not found:  # (with its files there) credentials, the guest, the lab link
+        check(lambda: check_router(config))
     return found
 
 

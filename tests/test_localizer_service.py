@@ -98,11 +98,11 @@ async def test_localizer_process_tracks_gates_and_survives(robot) -> None:
 
 async def test_localizer_with_a_bad_world_says_so_and_exits(make_robot) -> None:
     # (Bad values, such as sigma_bearing = 0, are refused when the config is read: tests/test_config.py.)
-    robot = make_robot('[localizer]\nworld = "no-such-world"\n')
+    robot = make_robot('[localizer]\nworld = "no-such-world.toml"\n')
     proc = robot.start("localizer")
     deadline = time.monotonic() + 30
     while proc.alive():
         assert time.monotonic() < deadline, proc.output
         await asyncio.sleep(0.1)
     assert proc.popen.returncode == EXIT_CONFIG
-    assert "no-such-world: no world file of that name" in proc.output
+    assert "no-such-world: no world file of that name (known: lab" in proc.output

@@ -6,8 +6,10 @@ This is the bus process. It
   it comes), ``io/leds``, ``io/ledarray``, ``io/text``, ``io/screen`` (collected
   every 20 ms) and answers the ``cmd/motion`` and ``cmd/halt`` queries
   (`bridge.Bridge`);
-* starts the real-time process (`rt.py`: the cycle, no Zenoh in it), hands it
-  the commands through shared memory, and restarts it if it dies;
+* starts the real-time process (`rt.py`: the cycle, no Zenoh in it) and hands
+  it the commands through shared memory; if that process dies, tells the board
+  to stop and exits, so that its supervisor (``icefloe up``, systemd) starts
+  both afresh;
 * publishes ``hw/wheels`` (``hwbridge.wheels_rate_hz``), ``hw/loop`` (1 Hz),
   ``hw/battery``, ``io/buttons`` and ``io/dip`` from the state the cycle writes.
 
@@ -30,47 +32,70 @@ import msgspec
 import zenoh
 
 from icefloe.config import RobotConfig
-from icefloe.errors import EXIT_CONFIG, BadPayload
+from icefloe.errors import EXIT_CONFIG, BadPayload, BoardError
 from icefloe.runtime import Node, run
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
+from .board import make_board
 from .bridge import Bridge, LoopReport
 from .rt import EXIT_MISMATCH
 from .shm import IO_SLOTS, Shared, block_name
 
-RESTART_DELAY_S = 1.0
-"""Wait before restarting a real-time process that died."""
+EXIT_RT_GONE = 4
+"""Exit status when the real-time process died: the supervisor restarts hwbridge, which starts a
+new cycle on a fresh shared-memory block (the old one may hold a write the dead cycle never finished)."""
+READ_BACKOFF_S = (0.001, 0.1)
+"""First and longest wait before reading the cycle's state again after a read was put off
+(`Shared.read_state` gave None: the cycle was descheduled in the middle of a write)."""
 
 
 async def supervise(config: RobotConfig, bridge: Bridge, node: Node) -> int:
-    """Run the real-time process; restart it when it dies; stop it when we are cancelled.
+    """Run the real-time process until it exits (returns hwbridge's exit status); stop it when we
+    are cancelled.
 
-    Returns only when the board does not match the config (`EXIT_CONFIG`)."""
-    payload = msgspec.json.encode(config)
-    shared = bridge.shared
-    while True:
-        proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "icefloe.services.hwbridge.rt", "--shm", shared.name,
-            stdin=asyncio.subprocess.PIPE)
-        assert proc.stdin is not None
-        proc.stdin.write(payload)
-        proc.stdin.close()
-        bridge.rt_pid = proc.pid
-        try:
-            code = await proc.wait()
-        except asyncio.CancelledError:
-            bridge.rt_pid = None
-            await _terminate(proc)
-            raise
+    If it exits by itself, the board refused to run (`EXIT_MISMATCH`: returns `EXIT_CONFIG`), or the cycle is gone
+    (killed, crashed): then nothing drives the board, so tell it to stop and return `EXIT_RT_GONE`.
+    """
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "icefloe.services.hwbridge.rt", "--shm", bridge.shared.name,
+        stdin=asyncio.subprocess.PIPE)
+    assert proc.stdin is not None
+    proc.stdin.write(msgspec.json.encode(config))
+    proc.stdin.close()
+    bridge.rt_pid = proc.pid
+    try:
+        code = await proc.wait()
+    except asyncio.CancelledError:
         bridge.rt_pid = None
-        bridge.forward_messages()  # its last words (e.g. why it refused the board)
-        if code == EXIT_MISMATCH:
-            node.log.error("the board does not match the config; hwbridge stops (see above)")
-            return EXIT_CONFIG  # restarting cannot help: icefloe up stops the robot
-        node.log.error("real-time process exited with status %s; restarting in %.0f s",
-                       code, RESTART_DELAY_S)
-        await asyncio.sleep(RESTART_DELAY_S)
+        await _terminate(proc)
+        raise
+    bridge.rt_pid = None
+    bridge.forward_messages()  # its last words (e.g. why it refused the board)
+    if code == EXIT_MISMATCH:
+        node.log.error("the board does not match the config; hwbridge stops (see above)")
+        return EXIT_CONFIG  # restarting cannot help: icefloe up stops the robot
+    stopped = await asyncio.to_thread(stop_board, config)
+    node.log.error("real-time process exited with status %s; %s; hwbridge exits (status %d) for its "
+                   "supervisor to restart it", code, stopped, EXIT_RT_GONE)
+    return EXIT_RT_GONE
+
+
+def stop_board(config: RobotConfig) -> str:
+    """Tell the board to stop the wheels, from the bus process (the cycle is gone); says how it went.
+
+    The same calls the cycle makes on its way out: open the link (PenguinPi: MULTI_ALL_STOP;
+    icoBoard: START, RESET), then `Board.stop` (MULTI_ALL_STOP; EXIT). The link is free: the
+    kernel closed the dead process's serial port or socket.
+    """
+    board = make_board(config, lambda _kind, _text: None)
+    try:
+        board.open(time.monotonic_ns())
+    except (BoardError, OSError) as exc:
+        return f"could not tell the board to stop ({exc})"
+    board.stop()
+    board.close()
+    return "the board was told to stop"
 
 
 async def _terminate(proc: asyncio.subprocess.Process) -> None:
@@ -100,13 +125,14 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
     last_sample = last_battery = last_presses = 0
     last_dip = -1
     next_loop = time.monotonic()
+    backoff = READ_BACKOFF_S[0]
     while True:
-        try:
-            s = shared.read_state()
-        except TimeoutError:  # the cycle was preempted mid-write (a loaded machine): read again next time
-            node.limited.warning("hw state", "state not readable (the cycle is mid-write); read again")
-            await asyncio.sleep(interval)
+        s = shared.read_state()
+        if s is None:  # the cycle was descheduled mid-write (a starved machine): let it finish
+            await asyncio.sleep(backoff)
+            backoff = min(2 * backoff, READ_BACKOFF_S[1])
             continue
+        backoff = READ_BACKOFF_S[0]
         if not s["rt_started"]:  # the cycle has not written anything yet
             await asyncio.sleep(interval)
             continue
@@ -128,7 +154,7 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
         bridge.forward_messages()
         if now >= next_loop:
             next_loop += 1.0
-            stats = report.make(s, shared.hist, now)
+            stats = report.make(s, shared.hist, now, shared.stalled_reads)
             bridge.epoch += 1  # the cycle restarts its maxima for the next interval
             bridge.sync()
             if stats is not None:
@@ -147,8 +173,9 @@ arriving on a Zenoh thread does not wait behind the event loop for milliseconds.
 
 
 async def main(config: RobotConfig) -> int:
-    """Returns the exit status: 0 when stopped by a signal, `EXIT_CONFIG` when the board does not
-    match the config. (The config's values were checked when it was read.)"""
+    """Returns the exit status: 0 when stopped by a signal, `EXIT_CONFIG` (78) when the board
+    does not match the config, `EXIT_RT_GONE` (4) when the real-time process died. (The config's
+    values were checked when it was read.)"""
     sys.setswitchinterval(GIL_SWITCH_S)
     async with Node("hwbridge", config) as node:
         shared = Shared.create(block_name(config.name))
@@ -156,7 +183,7 @@ async def main(config: RobotConfig) -> int:
         stop_sub = fast_stop(node, bridge)
         try:
             async with asyncio.TaskGroup() as tasks:
-                # When the supervisor returns (the board refused), everything else stops too.
+                # When the supervisor returns (the board refused, the cycle died), everything else stops too.
                 cycle = tasks.create_task(supervise(config, bridge, node))
                 others = [tasks.create_task(publish(config, bridge, node)),
                           tasks.create_task(forward_io(node, bridge))]
@@ -189,6 +216,8 @@ def fast_stop(node: Node, bridge: Bridge) -> zenoh.Subscriber:
     key_expr = node.key(keys.STOP)
 
     def on_sample(sample: zenoh.Sample) -> None:
+        if not node.own_key(key_expr, str(sample.key_expr)):
+            return  # a wildcard put (icefloe/*/cmd/stop) is no command for this robot
         try:
             codec.decode(sample.payload.to_bytes(), str(sample.encoding), m.Stop, key_expr)
         except BadPayload as exc:
