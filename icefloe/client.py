@@ -493,8 +493,8 @@ class AsyncRobot:
                     result = callback(msg)
                     if inspect.isawaitable(result):
                         await result
-                except Exception:  # a student's callback must not end the subscription
-                    self.node.log.exception("callback %r failed", callback)
+                except Exception as exc:  # a student's callback must not end the subscription
+                    self.callback_failed(callback, exc)
 
     async def _fire(self, callback: Callable[..., object], *args: Any) -> None:
         """Call a user's callback: on the blocking `Robot`'s callback thread if there is one (plain
@@ -506,8 +506,14 @@ class AsyncRobot:
             result = callback(*args)
             if inspect.isawaitable(result):
                 await result
-        except Exception:  # a student's callback must not end the subscription
-            self.node.log.exception("callback %r failed", callback)
+        except Exception as exc:  # a student's callback must not end the subscription
+            self.callback_failed(callback, exc)
+
+    def callback_failed(self, callback: Callable[..., object], exc: Exception) -> None:
+        """Log a user's callback that raised, with its traceback: a few a second per callback and
+        then a count (`LimitedLog`), as a callback that fails at every pose would fail 50 times a second."""
+        name = getattr(callback, "__qualname__", type(callback).__name__)
+        self.node.limited.error(f"callback {name}", "callback %r failed", callback, exc_info=exc)
 
     async def _follow_buttons(self) -> None:
         """``io/buttons`` -> the `Button` objects: counts, state, callbacks, waiters."""
@@ -1044,8 +1050,11 @@ class Robot:
                     del self._pending[callback]
             try:
                 callback(*args)
-            except Exception:
-                log.exception("callback %r failed", callback)
+            except Exception as exc:
+                if self._robot is not None:
+                    self._robot.callback_failed(callback, exc)
+                else:
+                    log.exception("callback %r failed", callback)
 
         with contextlib.suppress(RuntimeError):  # closing: no more callbacks
             self._callbacks.submit(run)
