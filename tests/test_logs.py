@@ -120,3 +120,23 @@ def test_errors_keep_their_traceback_on_the_lines_shown(lines: Lines) -> None:
     limited.flush()
     assert lines.texts[-1] == "1 more line like these not shown in 0.0 s: 1 query failed"
     assert lines.records[-1].levelno == logging.ERROR
+
+
+def test_a_callback_that_always_raises_is_a_few_tracebacks_and_a_count(lines: Lines) -> None:
+    """`AsyncRobot.callback_failed`: a student's ``on_pose`` that raises at 50 poses a second."""
+    from types import SimpleNamespace
+
+    from icefloe.client import AsyncRobot
+
+    robot = AsyncRobot.__new__(AsyncRobot)  # only its node's LimitedLog is used
+    robot.node = SimpleNamespace(limited=LimitedLog(lines.log, clock=lambda: 0.0))
+
+    def on_pose(pose: object) -> None:
+        raise ZeroDivisionError
+
+    for _ in range(500):
+        robot.callback_failed(on_pose, ZeroDivisionError())
+    robot.node.limited.flush()
+    assert [r.exc_info is not None for r in lines.records[:3]] == [True] * 3  # with their tracebacks
+    assert lines.texts[3:] == ["497 more lines like these not shown in 0.0 s: 497 callback "
+                               "test_a_callback_that_always_raises_is_a_few_tracebacks_and_a_count.<locals>.on_pose"]
