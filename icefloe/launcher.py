@@ -225,6 +225,7 @@ def problems(config: RobotConfig, services: Sequence[str]) -> list[str]:
     depends on the machine and on the files the services read: credentials, a real board's
     devices, world maps, the camera's calibration, the simulator's device paths.
     """
+    from .config import private_dir
     from .router import check_router
     from .worldmap import load_world
 
@@ -236,6 +237,7 @@ def problems(config: RobotConfig, services: Sequence[str]) -> list[str]:
         except ConfigError as exc:
             found.append(str(exc))
 
+    check(lambda: private_dir(config.runtime_dir))  # (each service makes it so too: here it is said once)
     b = config.board
     if "hwbridge" in services and b.backend == "hardware":
         key, path = ("serial_port", b.serial_port) if b.kind == "penguinpi" else ("spi_device", b.spi_device)

@@ -36,7 +36,7 @@ from icefloe import config as config_mod
 from icefloe.client import AsyncRobot
 from icefloe.config import private_dir
 from icefloe.credentials import GUEST_PASSWORD, GUEST_USER, Credentials, read
-from icefloe.errors import ConfigError, NotReachable
+from icefloe.errors import EXIT_CONFIG, ConfigError, NotReachable
 from icefloe.graph import read as read_graph
 from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import codec, keys
@@ -712,7 +712,10 @@ def test_the_run_folder_is_private(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     config.write_text(f'extends = "sim"\nname = "r1"\nrun_dir = "{tmp_path / "link"}"\n')
     res = subprocess.run([sys.executable, "-m", "icefloe.services.info", "--config", str(config)],
                          capture_output=True, text=True, cwd=ROOT, timeout=60)
-    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "symlink" in res.stderr, res.stderr
+    assert res.returncode == EXIT_CONFIG and res.stderr.count("\n") == 1 and "symlink" in res.stderr, res.stderr
+    up = subprocess.run([sys.executable, "-m", "icefloe.cli", "up", str(config), "--no-viz"], capture_output=True,
+                        text=True, cwd=ROOT, timeout=60)  # refused before anything starts
+    assert up.returncode == EXIT_CONFIG and up.stdout == "" and "symlink" in up.stderr, up.stdout + up.stderr
 
 
 def test_a_robot_called_guest_gets_no_router(tmp_path: Path) -> None:
