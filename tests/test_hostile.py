@@ -107,12 +107,14 @@ def test_the_whole_stack_takes_hostile_input_and_then_drives(tmp_path: Path) -> 
             counter = hostile.LogCounter(session, name)
             begin = hostile.truth(session, name)
             lines_before = hostile.output_lines(stack.output())
+            rss_before = stack.rss()
             start = time.monotonic()
             sent = hostile.flood(session, name, 10_000, seed=1, rate_hz=5_000.0)
             answers, closed = asyncio.run(http_phase(stack.web_port))
             time.sleep(2.0)  # the counts of lines not shown come at the end of their second
             took = time.monotonic() - start
             end = hostile.truth(session, name)
+            rss_after = stack.rss()
             on_bus, output = counter.take(), hostile.output_lines(stack.output()) - lines_before
             text = stack.output()
 
@@ -120,6 +122,9 @@ def test_the_whole_stack_takes_hostile_input_and_then_drives(tmp_path: Path) -> 
             assert {t.name for t in (*hostile.READ_KEYS, *hostile.QUERYABLES)} <= set(sent)
             assert "exited with code" not in text and "Traceback" not in text, text[-5000:]
             assert hostile.moved(begin, end) < 0.001 and (end.duty_left, end.duty_right) == (0.0, 0.0)
+            # Memory: every process within the bench's bound of where it started (docs/hostile-input.md).
+            grew = {p: round(rss_after.get(p, 0.0) - v, 1) for p, v in rss_before.items()}
+            assert max(grew.values()) <= hostile.BOUND_MIB and min(rss_after.values()) > 0, grew
             # Few lines: each process writes at most 7 lines a second per LimitedLog (hwbridge,
             # odometry and the localizer have two), and copies at most 20 a second to the bus.
             for service in hostile.STACK:
