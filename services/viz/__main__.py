@@ -12,7 +12,7 @@ import functools
 import sys
 from collections.abc import Sequence
 
-from icefloe.errors import ConfigError
+from icefloe.errors import IcefloeError
 from icefloe.runtime import run
 
 from .options import add_arguments, options_from
@@ -31,11 +31,11 @@ def add_service_arguments(parser: argparse.ArgumentParser) -> None:
 def start(args: argparse.Namespace) -> None:
     """Run the viz service with parsed options until it ends or Ctrl-C."""
     if not (args.save or args.serve) and (problem := display_problem()):  # before seconds of importing Rerun
-        raise ConfigError(f"cannot open the Rerun viewer: {problem}; {how_to_look()}")
+        raise IcefloeError(f"cannot open the Rerun viewer: {problem}; {how_to_look()}")
     try:
         from .app import main  # imports Rerun (the `viz` extra)
     except ImportError as exc:
-        raise ConfigError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
+        raise IcefloeError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
 
     common = ["--log-level", args.log_level]
     if args.config:
@@ -51,7 +51,7 @@ def cli(argv: Sequence[str] | None = None) -> None:
     add_service_arguments(parser)
     try:
         start(parser.parse_args(argv))
-    except ConfigError as exc:
+    except IcefloeError as exc:  # (a bad config, no display, no viewer: one line)
         print(f"icefloe viz: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
 

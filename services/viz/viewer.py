@@ -20,7 +20,7 @@ import sysconfig
 import time
 from pathlib import Path
 
-from icefloe.errors import ConfigError
+from icefloe.errors import IcefloeError
 
 START_TIMEOUT_S = 30.0
 """How long the viewer may take to listen (software rendering on a busy machine is slow), s."""
@@ -45,7 +45,7 @@ def executable() -> str:
     beside = Path(sysconfig.get_path("scripts")) / name
     found = str(beside) if beside.exists() else shutil.which("rerun")
     if not found:
-        raise ConfigError(f"no Rerun viewer at {beside} nor on PATH: pip install 'icefloe[viz]' into this Python")
+        raise IcefloeError(f"no Rerun viewer at {beside} nor on PATH: pip install 'icefloe[viz]' into this Python")
     return found
 
 
@@ -93,7 +93,7 @@ class Viewer:
         if listening(port):
             return
         if problem := display_problem():
-            raise ConfigError(f"cannot open the Rerun viewer: {problem}; {how_to_look()}")
+            raise IcefloeError(f"cannot open the Rerun viewer: {problem}; {how_to_look()}")
         log.parent.mkdir(parents=True, exist_ok=True)
         with open(log, "wb") as out:
             # Its own session: a Ctrl-C meant for the robot leaves the window and its data open.
@@ -107,10 +107,10 @@ class Viewer:
         # It listens before it opens its window: it has started once it is still there a moment later.
         while up_since is None or time.monotonic() - up_since < SETTLE_S:
             if self.process.poll() is not None:
-                raise ConfigError(f"the Rerun viewer exited at start ({_last_error(log)}); {how_to_look()}")
+                raise IcefloeError(f"the Rerun viewer exited at start ({_last_error(log)}); {how_to_look()}")
             if time.monotonic() > deadline:
                 self.process.kill()
-                raise ConfigError(f"the Rerun viewer did not listen on port {port} within {START_TIMEOUT_S:.0f} s "
+                raise IcefloeError(f"the Rerun viewer did not listen on port {port} within {START_TIMEOUT_S:.0f} s "
                                   f"(its log: {log})")
             if up_since is None and listening(port):
                 up_since = time.monotonic()
