@@ -94,6 +94,7 @@ class World:
         # m of rim travel per encoder count
         self._m_per_count = math.pi * geometry.wheel_diameter / geometry.ticks_per_rev
         self._duty = [0.0, 0.0]
+        self._peak = 0.0                     # largest |duty| since `mark`
         self._speed = [0.0, 0.0]             # rim speed, m/s
         self._counts = [0.0, 0.0]            # fractional encoder position, counts
         self._stalled = [False, False]
@@ -112,6 +113,18 @@ class World:
                 raise ValueError(f"{name} duty must be a finite number in [-1, 1], got {value}")
         with self._lock:
             self._duty = [float(left), float(right)]
+            self._peak = max(self._peak, abs(left), abs(right))
+
+    def mark(self) -> None:
+        """Start a new window for `peak_duty`: from now, the largest duty applied."""
+        with self._lock:
+            self._peak = max(abs(self._duty[0]), abs(self._duty[1]))
+
+    @property
+    def peak_duty(self) -> float:
+        """The largest |duty| (either wheel) applied since the last `mark` (or the start)."""
+        with self._lock:
+            return self._peak
 
     def stall(self, wheel: str, on: bool) -> None:
         """Block a wheel ("left" or "right"): it stops turning and draws stall current."""
