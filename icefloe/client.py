@@ -14,9 +14,15 @@ is the same robot for ``asyncio`` code (``async with AsyncRobot(...) as robot``)
 Both are thin: every call is one message on the bus, listed in each docstring, so
 a student can later do the same with raw Zenoh in any language.
 
+Every command carries who sent it (``sender``: this client's Zenoh session id),
+its number (``seq``) and when it was issued (``stamp``), so that the robot puts a
+stop and the commands around it in the order they were issued, whatever path
+each took on the bus (docs/hwbridge.md, "Which command wins").
+
 Errors: `icefloe.errors.NotReachable` (naming the endpoint or key) when the robot
-or one of its services does not answer in time; `ValueError` naming the argument
-for a bad argument (nothing is sent then).
+or one of its services does not answer in time; `icefloe.errors.NotConfirmed`
+when the robot could not confirm a stop; `ValueError` naming the argument for a
+bad argument (nothing is sent then).
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ import argparse
 import asyncio
 import contextlib
 import inspect
+import itertools
 import math
 import threading
 import time
@@ -40,13 +47,14 @@ import zenoh
 from . import config as config_mod
 from .config import RobotConfig
 from .credentials import read as read_credentials
-from .errors import ConfigError, NotReachable
+from .errors import BadPayload, ConfigError, NotConfirmed, NotReachable
 from .runtime import Node, open_session
 from .schemas import keys
 from .schemas import messages as m
 from .schemas.keys import Topic
 
 T = TypeVar("T")
+C = TypeVar("C", bound=m.Command)
 
 
 class Encoders(NamedTuple):
@@ -179,6 +187,11 @@ class AsyncRobot:
         self._moved = False
         self._stop_sub: Any = None
         self.leds: Leds
+        self._sender = ""
+        self._seq = itertools.count(1)
+        # `stamp` comes from a clock that never jumps back (the wall clock read once, then
+        # advanced by the monotonic clock): hwbridge learns its offset from the robot's.
+        self._wall0, self._mono0 = time.time_ns(), time.monotonic_ns()
 
     # ------------------------------------------------------------------ connection
 
@@ -200,6 +213,7 @@ class AsyncRobot:
                                        f"within {connect_timeout} s") from None
                 await asyncio.sleep(0.2)
         await self.node.__aenter__()  # the router answers: this opens at once
+        self._sender = str(self.node.session.zid())
         self._wheels = self.node.publisher(keys.WHEELS_CMD)
         self._stop = self.node.publisher(keys.STOP)
         self._oled = self.node.publisher(keys.OLED_TEXT)
@@ -223,7 +237,7 @@ class AsyncRobot:
         """Stop the wheels if this client moved them, and close the session."""
         if self._moved and hasattr(self, "_stop"):
             self._end_hold()
-            self._stop.put(m.Stop())
+            self._stop.put(self.command(m.Stop))
         for task in self._tasks:
             task.cancel()
         self._end_hold()
@@ -339,6 +353,12 @@ class AsyncRobot:
 
     # ------------------------------------------------------------------ commands
 
+    def command(self, kind: type[C], **fields: Any) -> C:
+        """A command message of type ``kind`` (`m.Twist`, `m.Stop`, ...) with ``fields``, numbered
+        and stamped as this client's next command. For publishing a command yourself."""
+        stamp = self._wall0 + time.monotonic_ns() - self._mono0
+        return kind(sender=self._sender, seq=next(self._seq), stamp=stamp, **fields)
+
     async def set_velocity(self, left: float, right: float, duration: float | None = None,
                            accel: float | None = None) -> m.MotionDone | None:
         """Drive the wheels at ``left``, ``right`` rim speeds (m/s, positive forward).
@@ -356,7 +376,7 @@ class AsyncRobot:
             self._end_hold()
             self._moved = True
             if left == 0 and right == 0:
-                self._wheels.put(m.WheelSpeeds(left=0.0, right=0.0))
+                self._wheels.put(self.command(m.WheelSpeeds, left=0.0, right=0.0))
             else:
                 self._hold = asyncio.create_task(self._hold_speeds(left, right))
             return None
@@ -371,15 +391,14 @@ class AsyncRobot:
                              f"duration ({duration} s)")
         self._end_hold()
         self._moved = True
-        motion = m.Motion(left=left, right=right, duration=duration, accel=accel)
+        motion = self.command(m.Motion, left=left, right=right, duration=duration, accel=accel)
         # The motion lasts duration + accel; allow for the bus and a busy robot.
         return await self.node.query(keys.MOTION, motion, timeout=duration + accel + self.timeout)
 
     async def _hold_speeds(self, left: float, right: float) -> None:
         period = self.config.hwbridge.deadman_s / 4
-        command = m.WheelSpeeds(left=left, right=right)
         while True:
-            self._wheels.put(command)
+            self._wheels.put(self.command(m.WheelSpeeds, left=left, right=right))
             await asyncio.sleep(period)
 
     def _end_hold(self) -> None:
@@ -387,10 +406,24 @@ class AsyncRobot:
             self._hold.cancel()
             self._hold = None
 
-    async def stop(self) -> None:
-        """Stop the wheels now (``cmd/stop``); also ends a held velocity or a timed motion."""
+    async def stop(self, confirm: bool = True) -> m.Wheels | None:
+        """Stop the wheels now (``cmd/stop``); also ends a held velocity or a timed motion.
+
+        With ``confirm`` (the default) it then asks hwbridge (``cmd/halt`` with ``rest =
+        False``, the same stop) and returns once the board runs zero duty with its
+        controller cleared, with the wheel state at that moment; `NotConfirmed` if
+        hwbridge could not confirm it, `NotReachable` if hwbridge does not answer.
+        """
         self._end_hold()
-        self._stop.put(m.Stop())
+        stop = self.command(m.Stop)
+        self._stop.put(stop)
+        if not confirm:
+            return None
+        halt = m.Halt(sender=stop.sender, seq=stop.seq, stamp=stop.stamp, rest=False)
+        try:
+            return await self.node.query(keys.HALT, halt, timeout=self.timeout)
+        except BadPayload as exc:  # hwbridge's answer: why it could not confirm
+            raise NotConfirmed(str(exc)) from None
 
     async def reset_pose(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> m.Pose:
         """Reset the odometry pose (``odom/reset`` query) to x, y (m), theta (rad); returns it."""
@@ -524,9 +557,10 @@ class Robot:
         """See `AsyncRobot.set_velocity` (m/s; with ``duration`` it blocks until the motion ends)."""
         return self._call(self._r.set_velocity(left, right, duration, accel))
 
-    def stop(self) -> None:
-        """Stop the wheels now."""
-        self._call(self._r.stop())
+    def stop(self, confirm: bool = True) -> m.Wheels | None:
+        """Stop the wheels now; see `AsyncRobot.stop` (by default it returns once the robot
+        confirmed the stop)."""
+        return self._call(self._r.stop(confirm))
 
     def reset_pose(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> m.Pose:
         """Reset the odometry pose to x, y (m), theta (rad)."""
