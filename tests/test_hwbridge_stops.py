@@ -181,15 +181,18 @@ def test_penguinpi_a_lost_gain_is_sent_again_and_only_then_confirmed(firmware: F
     assert board.board_errors >= 1                     # the firmware's ERR: CRC failed
 
 
-@pytest.mark.parametrize("late_ms", [25, 35, 60])
-def test_penguinpi_a_late_reply_is_counted_late_never_used(firmware: Firmware, late_ms: int) -> None:
+@pytest.mark.parametrize(("late_ms", "replies"), [(25, 1), (35, 2), (60, 3), (30, 40)])
+def test_penguinpi_a_late_reply_is_counted_late_never_used(firmware: Firmware, late_ms: int,
+                                                           replies: int) -> None:
+    """(30, 40): every reply 30 ms later than the one before, for 40 replies: the line falls
+    behind until every kind of request has timed out; then hwbridge waits for silence."""
     board = firmware.board
     firmware.run(300, 0.1, 0.1)
     counts: list[int] = []
-    for burst in range(5):
+    for _ in range(5):
         # The board answers the next requests (wheel exchanges and polls) past their timeout.
-        firmware.delay_ms, firmware.delays = late_ms, 1 + burst % 3
-        for _ in range(300):
+        firmware.delay_ms, firmware.delays = late_ms, replies
+        for _ in range(300 + replies * late_ms):
             firmware.step(0.1, 0.1)
             counts.append(board.ticks_left)
             # What hwbridge reports is never ahead of what the board counted, nor goes back.

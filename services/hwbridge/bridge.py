@@ -46,8 +46,9 @@ MOTION_STEP_S = 0.02
 HALTED_SPEED = 0.005
 """``cmd/halt`` answers once both measured speeds are below this, m/s."""
 HALT_TIMEOUT_S = 3.0
-CONFIRM_TIMEOUT_S = 1.0
-"""A stop the board has not confirmed within this long is reported as not confirmed, s."""
+CONFIRM_TIMEOUT_S = 3.0
+"""A stop the board has not confirmed within this long is reported as not confirmed, s (it
+normally takes one exchange on the icoBoard, ~25 ms on the PenguinPi: docs/hwbridge.md)."""
 CONFIRM_POLL_S = 0.001
 """How often a waiting confirmation looks at the cycle's state, s."""
 
@@ -184,8 +185,11 @@ class Bridge:
                 raise NotConfirmed("a motion command issued after the stop released it "
                                    "before the board confirmed it")
             if time.monotonic() > deadline:
-                raise NotConfirmed(f"the board did not confirm the stop within {timeout:g} s "
-                                   "(is the board link up?)")
+                age = (time.monotonic_ns() - state["sample_ns"]) * 1e-9 if state["sample_ns"] else -1
+                raise NotConfirmed(
+                    f"the board did not confirm the stop within {timeout:g} s (board link "
+                    f"{'up' if state['link_up'] else 'down'}, last reading {age:.3f} s ago, "
+                    f"{state['timeouts']} timeouts so far)")
             await asyncio.sleep(CONFIRM_POLL_S)
 
     def kick(self) -> None:

@@ -76,6 +76,9 @@ BYTE_NS = 10 * 1_000_000_000 // 115200
 """One byte (start + 8 data + stop bits) at 115200 baud, ns (~87 µs)."""
 REPLY_TIMEOUT_NS = 20_000_000
 """A GET with no reply after this long is counted as a timeout and its kind probed past."""
+QUIET_NS = 3 * REPLY_TIMEOUT_NS
+"""When every kind of request has timed out, nothing is asked until the line has been silent
+this long: the replies given up on are not coming any more."""
 POLL_PERIOD_NS = 1_000_000_000 // 60
 """Slow polls, round-robin over 6 readings: each one at 10 Hz."""
 DRIVE_KVI = 1
@@ -154,6 +157,8 @@ class PenguinPiBoard(Board):
         self._requests = 0
         """GETs written so far; a reply to GET number n shows the board took every byte before it."""
         self._stale: set[Kind] = set()
+        self._heard_ns = 0
+        """When bytes last came from the board."""
         # the integral gains (see "Stopping")
         self._gain = 0
         """The integral gain written last (what the board has, unless the line lost it)."""
@@ -240,6 +245,7 @@ class PenguinPiBoard(Board):
         except (serial.SerialException, OSError) as exc:
             raise BoardError(f"{self.port_name}: read failed (link lost?): {exc}") from None
         if data:
+            self._heard_ns = now_ns
             self._receive(data, now_ns)
         if stopped != self._was_stopped:
             self._was_stopped = stopped
@@ -277,7 +283,10 @@ class PenguinPiBoard(Board):
                 self._request(WHEEL, now_ns, first, speeds)
             else:  # probing past a late wheel reply: set, then ask another way
                 first += ppi.encode_frame(Address.AD_MULTI, MultiOp.MULTI_SET_VEL, speeds)
-                self._request(self._fresh(WHEEL_GET, *POLLS), now_ns, first)
+                if (kind := self._fresh(now_ns, WHEEL_GET, *POLLS)) is not None:
+                    self._request(kind, now_ns, first)
+                else:
+                    self._write(first)
             # Keep the rate without drifting, but never try to catch up a backlog.
             self._next_exchange = max(self._next_exchange + self.exchange_period_ns,
                                       now_ns + self.exchange_period_ns // 2)
@@ -285,8 +294,8 @@ class PenguinPiBoard(Board):
             self._request(kind, now_ns, first)
         elif self._outbox:
             self._write(first + self._outbox.popleft())
-        elif now_ns >= self._next_poll:
-            kind = self._fresh(*POLLS[self._poll_index:], *POLLS[:self._poll_index])
+        elif now_ns >= self._next_poll and (
+                kind := self._fresh(now_ns, *POLLS[self._poll_index:], *POLLS[:self._poll_index])):
             self._poll_index = (POLLS.index(kind) + 1) % len(POLLS)
             self._request(kind, now_ns, first)
             self._next_poll = now_ns + POLL_PERIOD_NS
@@ -297,13 +306,15 @@ class PenguinPiBoard(Board):
         if first:
             self._gains_written(self._gain_want, with_request=self._inflight is not None)
 
-    def _fresh(self, *kinds: Kind) -> Kind:
-        """The first of ``kinds`` that is not waiting to be probed past."""
+    def _fresh(self, now_ns: int, *kinds: Kind) -> Kind | None:
+        """The first of ``kinds`` that is not waiting to be probed past, or None."""
         for kind in kinds:
             if kind not in self._stale:
                 return kind
-        # Every kind timed out and nothing answered: the board is silent (booting, or in its
-        # shutdown state). Start the probe over rather than stop asking.
+        # Every kind timed out and nothing answered (a board far behind, booting, or in its
+        # shutdown state): ask again once the line has been silent for a while.
+        if now_ns - max(self._heard_ns, self._inflight_deadline) < QUIET_NS:
+            return None
         self._stale.clear()
         return kinds[0]
 
