@@ -460,6 +460,11 @@ class SimState(Message):
     """PenguinPi: the firmware PI controller's integral term (its ``sum``) for the left motor
     (0 on the icoBoard, whose controller runs in hwbridge)."""
     integrator_right: int = 0
+    zero_duty_since: float = -1.0
+    """Simulated time since which both wheels' duty has been 0, s (-1 while a wheel is driven)."""
+    counts_changed: float = 0.0
+    """Simulated time of the last change of either true encoder count, s (the wheels have been
+    still since)."""
 
 
 class OledFrame(Message):

@@ -88,7 +88,8 @@ class Simulator:
             last_frame=bytes(last), bad_frames=bad, watchdog_trips=trips,
             gpio_button=self.gpio.button, gpio_request=self.gpio.request, gpio_ack=self.gpio.ack,
             peak_duty=self.world.peak_duty, ticks_left=ticks[0], ticks_right=ticks[1],
-            integrator_left=integrators[0], integrator_right=integrators[1])
+            integrator_left=integrators[0], integrator_right=integrators[1],
+            zero_duty_since=self.world.zero_duty_since, counts_changed=self.world.counts_changed)
 
     # ------------------------------------------------------------------ handles
 
