@@ -245,8 +245,9 @@ class Bridge:
                 continue
             return m.MotionDone(stamp=time.time_ns(), completed=False, reason=reason)
         self._motion = None
-        if since != self.changes:
-            return m.MotionDone(stamp=time.time_ns(), completed=False, reason="another command")
+        if cut.done() or since != self.changes:  # cut at its very end
+            reason = cut.result() if cut.done() else "another command"
+            return m.MotionDone(stamp=time.time_ns(), completed=False, reason=reason)
         try:
             await self.confirmed(self.stop("cmd/motion ended"))
         except NotConfirmed as exc:

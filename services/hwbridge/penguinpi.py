@@ -162,9 +162,8 @@ class PenguinPiBoard(Board):
         # the integral gains (see "Stopping")
         self._gain = 0
         """The integral gain written last (what the board has, unless the line lost it)."""
-        self._gain_want = 0
         self._gain_write = False
-        """Write `_gain_want` with the next request (a stop, a start, or a gain the board lost)."""
+        """Write `_gain_wanted` with the next request (a start, or a gain the board lost)."""
         self._gain_request = 0
         """Number of the first GET written after the gains: its reply shows they were taken."""
         self._gain_taken_ns = 0
@@ -250,7 +249,6 @@ class PenguinPiBoard(Board):
         if stopped != self._was_stopped:
             self._was_stopped = stopped
             self.stop_confirmed = False
-            self._gain_want = 0 if stopped else DRIVE_KVI
             self._gain_write = True
             if stopped:
                 # SETs are never answered, so they may go while a GET is in flight: at once.
@@ -273,7 +271,7 @@ class PenguinPiBoard(Board):
         Changed gains go out first, in the same write."""
         first = b""
         if self._gain_write:
-            first = set_gains(self._gain_want)
+            first = set_gains(self._gain_wanted)
         if now_ns >= self._next_exchange:
             demand_left = self._dither[0].step(left, now_ns)
             demand_right = self._dither[1].step(right, now_ns)
@@ -304,7 +302,12 @@ class PenguinPiBoard(Board):
         else:
             return
         if first:
-            self._gains_written(self._gain_want, with_request=self._inflight is not None)
+            self._gains_written(self._gain_wanted, with_request=self._inflight is not None)
+
+    @property
+    def _gain_wanted(self) -> int:
+        """The integral gain for now: 0 while stopped, the firmware's default while driving."""
+        return 0 if self._was_stopped else DRIVE_KVI
 
     def _fresh(self, now_ns: int, *kinds: Kind) -> Kind | None:
         """The first of ``kinds`` that is not waiting to be probed past, or None."""
