@@ -51,6 +51,8 @@ class Firmware:
         self.ms = 0
         self._held: deque[tuple[int, bytes]] = deque()
         self.delay_ms, self.delays = 0, 0
+        self.delay_only = b""
+        """Delay only replies that start with these bytes (b"": any)."""
         self.tamper = lambda data: data
         config = msgspec.convert({"board": {"serial_port": str(self.end.path)}}, RobotConfig)
         self.said: list[str] = []
@@ -59,7 +61,7 @@ class Firmware:
 
     def _transmit(self, data: bytes) -> None:
         due = self.ms
-        if self.delays:
+        if self.delays and data.startswith(self.delay_only):
             self.delays -= 1
             due += self.delay_ms
         if self._held:  # the line is FIFO: nothing overtakes a held reply
@@ -318,3 +320,16 @@ async def test_a_stop_released_before_its_confirmation_is_not_confirmed(shared) 
     assert bridge.command(0.1, 0.1, "cmd/wheels", Origin.of(time.monotonic_ns(), "a", 6, 1100))
     with pytest.raises(NotConfirmed, match="released it before the board confirmed"):
         await asyncio.wait_for(halt, 1.0)
+
+
+def test_penguinpi_button_presses_in_a_late_reply_are_not_lost(firmware: Firmware) -> None:
+    """HAT_GET_BUTTON clears the board's count when it is read: its late reply still counts."""
+    board = firmware.board
+    firmware.run(200, 0.1, 0.1)
+    firmware.delay_only = ppi.encode_frame(ppi.Address.AD_HAT, ppi.HatOp.HAT_GET_BUTTON, b"\0")[:4]
+    for _ in range(3):
+        firmware.fw.hat.press("S4")
+        firmware.delay_ms, firmware.delays = 30, 1    # the next button read answers late
+        firmware.run(300, 0.1, 0.1)
+    assert board.late == 3 and board.unmatched == 0
+    assert board.button_presses == 3

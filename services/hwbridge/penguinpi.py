@@ -98,10 +98,11 @@ WHEEL: Kind = (Address.AD_MULTI, MultiOp.MULTI_SET_VEL_GET_ENC)
 WHEEL_GET: Kind = (Address.AD_MULTI, MultiOp.MULTI_GET_ENC)
 GAIN_RIGHT: Kind = (Address.AD_MOTOR_R, MotorOp.MOTOR_GET_KVI)
 GAIN_LEFT: Kind = (Address.AD_MOTOR_L, MotorOp.MOTOR_GET_KVI)
+BUTTON: Kind = (Address.AD_HAT, HatOp.HAT_GET_BUTTON)
 # The slow polls, in the order they take turns.
 POLLS: tuple[Kind, ...] = (
     (Address.AD_ADC_V, AdcOp.ADC_GET_SMOOTH),
-    (Address.AD_HAT, HatOp.HAT_GET_BUTTON),
+    BUTTON,
     (Address.AD_ADC_C, AdcOp.ADC_GET_SMOOTH),
     (Address.AD_HAT, HatOp.HAT_GET_DIP),
     GAIN_RIGHT,
@@ -365,8 +366,13 @@ class PenguinPiBoard(Board):
         kind = (frame.address, frame.opcode)
         if kind != self._inflight:
             if kind in self._stale:
-                self._stale.discard(kind)  # the reply we gave up on: never used
+                # The reply to the request of this kind that timed out (the only one: a kind is
+                # not asked again until then): never taken for the answer to another request.
+                self._stale.discard(kind)
                 self.late += 1
+                if kind == BUTTON:  # its read cleared the board's count: keep the presses
+                    with contextlib.suppress(ValueError):
+                        self.button_presses += ppi.unpack_uint8(frame.payload)
             else:
                 self.unmatched += 1
             return
