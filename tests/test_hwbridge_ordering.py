@@ -135,3 +135,19 @@ def test_memory_stays_bounded_whatever_the_senders() -> None:
         o = Origin.of(S + i, f"s{i}", 1, 123 + i)
         order.motion(o) if i % 2 else order.stop(o, i)
     assert order.remembered <= 2 * MAX_SENDERS
+
+
+def test_a_sender_restarted_under_the_same_name_drives_again() -> None:
+    """A student's program with a fixed ``sender`` numbers from 1 again after a restart: its
+    stamps, later than any before, say so (a command issued earlier never does)."""
+    order = CommandOrder(DEADMAN)
+    first = Sender("my-robot-script")
+    for i in range(10):
+        assert order.motion(first.send(S + i * 50 * MS))[1] == ""
+    order.stop(first.send(2 * S), 1)
+    again = Sender("my-robot-script")                  # seq from 1 again
+    assert order.motion(again.send(5 * S))[1] == ""
+    # Still exact for reordering: a command issued before that restart's stop stays refused.
+    held = again.send(6 * S, delay=10 * MS)
+    order.stop(again.send(6 * S + MS), 2)
+    assert "same sender" in order.motion(held)[1]

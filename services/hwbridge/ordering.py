@@ -24,7 +24,10 @@ The rules (`CommandOrder`):
 1. A stop is never refused: even a late one stops the wheels.
 2. A motion command older than the deadman (age > ``deadman_ns``) is refused.
 3. A motion command whose ``seq`` is not above every stop and motion already
-   seen from its sender is refused (issued before that stop, or overtaken).
+   seen from its sender is refused (issued before that stop, or overtaken) --
+   unless its ``stamp`` is later than every one seen from that sender: then
+   the sender has started numbering again (a program restarted under the same
+   ``sender``), and its numbers count from there.
 4. A motion command issued before the latest stop of any *other* sender (or of
    anyone, if it carries no ``seq``) is refused.
 
@@ -99,6 +102,8 @@ class SenderClock:
 class _Sender:
     last_stop_seq: int = 0
     last_motion_seq: int = 0
+    last_stamp: int = 0
+    """The latest stamp seen from it (on its own clock)."""
     stop_number: int = 0
     """hwbridge's number of this sender's latest stop (`CommandOrder.stop`)."""
 
@@ -140,7 +145,7 @@ class CommandOrder:
         """
         issued = self.issued(o)
         if o.sender and o.seq:
-            s = self._sender(o.sender)
+            s = self._numbered(o)
             if o.seq == s.last_stop_seq:
                 return issued, s.stop_number
             if o.seq > s.last_stop_seq:
@@ -175,7 +180,7 @@ class CommandOrder:
             return issued, f"issued {age * 1e-9:.3f} s before it arrived (older than the deadman)"
         sender = None
         if o.sender and o.seq:
-            sender = self._sender(o.sender)
+            sender = self._numbered(o)
             if o.seq <= sender.last_stop_seq:
                 return issued, (f"issued before a stop from the same sender "
                                 f"(seq {o.seq} <= {sender.last_stop_seq})")
@@ -187,6 +192,15 @@ class CommandOrder:
         if sender is not None:
             sender.last_motion_seq = o.seq
         return issued, ""
+
+    def _numbered(self, o: Origin) -> _Sender:
+        """The record of ``o``'s sender, its numbering started again if ``o`` says so."""
+        s = self._sender(o.sender)
+        if o.clock == f"sender:{o.sender}":
+            if o.seq <= max(s.last_stop_seq, s.last_motion_seq) and o.stamp_ns > s.last_stamp:
+                s.last_stop_seq = s.last_motion_seq = 0  # a lower number, issued later: a restart
+            s.last_stamp = max(s.last_stamp, o.stamp_ns)
+        return s
 
     def _sender(self, name: str) -> _Sender:
         s = self._senders.get(name)
