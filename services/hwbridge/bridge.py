@@ -101,6 +101,9 @@ class Bridge:
         self._loop = asyncio.get_running_loop()
         self._motion: asyncio.Future[str] | None = None
         """Set while a timed motion runs; resolved with the reason it was cut short."""
+        self._waiting: list[tuple[int, asyncio.Future[dict]]] = []
+        """Stop numbers waited for (`confirmed`), and their futures: one task watches them all."""
+        self._watcher: asyncio.Task[None] | None = None
         self.sync()
 
     def sync(self) -> None:
@@ -176,20 +179,36 @@ class Bridge:
     async def confirmed(self, number: int, timeout: float = CONFIRM_TIMEOUT_S) -> dict:
         """The cycle's state once the board has confirmed stop ``number`` (zero duty, controller
         cleared); `NotConfirmed` if a newer motion released it first, or after ``timeout`` s."""
-        deadline = time.monotonic() + timeout
-        while True:
+        waiter: asyncio.Future[dict] = asyncio.get_running_loop().create_future()
+        self._waiting.append((number, waiter))
+        if self._watcher is None or self._watcher.done():
+            self._watcher = asyncio.create_task(self._watch())
+        try:
+            return await asyncio.wait_for(waiter, timeout)
+        except TimeoutError:
             state = self.shared.read_state()
-            if state["stop_confirmed"] >= number:
-                return state
-            if self.released >= number:
-                raise NotConfirmed("a motion command issued after the stop released it "
-                                   "before the board confirmed it")
-            if time.monotonic() > deadline:
-                age = (time.monotonic_ns() - state["sample_ns"]) * 1e-9 if state["sample_ns"] else -1
-                raise NotConfirmed(
-                    f"the board did not confirm the stop within {timeout:g} s (board link "
-                    f"{'up' if state['link_up'] else 'down'}, last reading {age:.3f} s ago, "
-                    f"{state['timeouts']} timeouts so far)")
+            age = (time.monotonic_ns() - state["sample_ns"]) * 1e-9 if state["sample_ns"] else -1
+            raise NotConfirmed(
+                f"the board did not confirm the stop within {timeout:g} s (board link "
+                f"{'up' if state['link_up'] else 'down'}, last reading {age:.3f} s ago, "
+                f"{state['timeouts']} timeouts so far)") from None
+
+    async def _watch(self) -> None:
+        """Answer the waiting `confirmed` calls from the cycle's state, every millisecond."""
+        while self._waiting:
+            state = self.shared.read_state()
+            waiting, self._waiting = self._waiting, []
+            for number, waiter in waiting:
+                if waiter.done():  # timed out
+                    continue
+                if state["stop_confirmed"] >= number:
+                    waiter.set_result(state)
+                elif self.released >= number:
+                    waiter.set_exception(NotConfirmed(
+                        "a motion command issued after the stop released it before the board "
+                        "confirmed it"))
+                else:
+                    self._waiting.append((number, waiter))
             await asyncio.sleep(CONFIRM_POLL_S)
 
     def kick(self) -> None:
