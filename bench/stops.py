@@ -149,6 +149,8 @@ def reference(speed: float) -> tuple[int, float, float]:
 
 
 def summary(name: str, values: list[float], unit: str) -> str:
+    if not values:
+        return f"  {name:<24} (none)"
     values = sorted(values)
     return (f"  {name:<24} p50 {statistics.median(values):7.1f}   max {values[-1]:7.1f}   "
             f"min {values[0]:7.1f}  {unit}")
