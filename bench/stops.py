@@ -96,7 +96,8 @@ async def one_stop(robot: AsyncRobot, speed: float) -> dict[str, float]:
     }
 
 
-async def board_run(config_path: Path, stops: int, speed: float) -> list[dict[str, float]]:
+async def board_run(config_path: Path, stops: int,
+                    speed: float) -> tuple[list[dict[str, float]], m.LoopStats]:
     config = config_mod.load(config_path)
     procs = [subprocess.Popen([sys.executable, "-m", module, "--config", str(config_path)],
                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -107,7 +108,9 @@ async def board_run(config_path: Path, stops: int, speed: float) -> list[dict[st
         await robot.open(connect_timeout=30)
         try:
             await robot.ready(keys.WHEELS.name, timeout=30)
-            return [await one_stop(robot, speed) for _ in range(stops)]
+            results = [await one_stop(robot, speed) for _ in range(stops)]
+            loops = robot.node.subscribe(keys.LOOP)
+            return results, await asyncio.wait_for(anext(loops), 10)
         finally:
             await robot.close()
     finally:
@@ -165,13 +168,14 @@ async def main() -> None:
         for board, toml in BOARDS.items():
             folder = Path(tmp) / board
             folder.mkdir()
-            every = await board_run(robot_config(folder, f"stops{board.replace('-', '')}", toml),
-                                    args.stops, args.speed)
+            every, stats = await board_run(
+                robot_config(folder, f"stops{board.replace('-', '')}", toml), args.stops, args.speed)
             results = [r for r in every if r["driving"]]
             unconfirmed = sum(int(r.get("unconfirmed", 0)) for r in every)
             print(f"{board}: {len(results)} stops from {args.speed} m/s ({len(every) - len(results)} "
-                  f"more: {unconfirmed} not confirmed, the others found the wheels stopped already, "
-                  "their commands having come later than the deadman)")
+                  f"more: {unconfirmed} not confirmed, the others found the wheels not driven; hw/loop: "
+                  f"{stats.commands_dropped} commands refused, {stats.timeouts} board timeouts, "
+                  f"{stats.late} late replies)")
             print(summary("stop -> confirmed (wall)", [r["confirmed_ms"] for r in results], "ms"))
             print(summary("stop -> zero duty", [r["zero_ms"] for r in results], "ms"))
             print(summary("stop -> standstill", [r["standstill_ms"] for r in results], "ms"))
