@@ -229,6 +229,15 @@ class Lab:
                     pids["hwbridge-rt"] += children(proc.pid)
         return dict(pids)
 
+    def cycle_pids(self) -> dict[str, list[int]]:
+        """Per robot, the pid of its hwbridge's real-time cycle (hwbridge's child; [] if none now)."""
+        out = {}
+        for name, procs in self.procs.items():
+            hwbridge = next(p for p in procs if p.name.endswith("/hwbridge"))
+            with contextlib.suppress(OSError):  # hwbridge itself has exited
+                out[name] = children(hwbridge.pid) if hwbridge.alive() else []
+        return out
+
     def dead(self) -> list[str]:
         """Processes that have exited, with the end of their output."""
         procs = [p for ps in self.procs.values() for p in ps] + ([self.router] if self.router else [])

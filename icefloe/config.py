@@ -44,6 +44,7 @@ class Board(Section):
     spi_device: str = "/dev/spidev0.0"
     """icoBoard: the SPI device on the Pi."""
     spi_speed_hz: int = 1_000_000
+    """icoBoard: SPI clock, Hz (icefloe's gateware takes 100 kHz .. 16.7 MHz, docs/gateware.md)."""
     sim_socket: str = "{run_dir}/icoboard.sock"
     """icoBoard in sim: the simulator's datagram socket (one datagram = one SPI exchange)."""
     protocol: Literal[1, 2] = 2
@@ -52,6 +53,8 @@ class Board(Section):
     """icoBoard: number of sensors (encoders), M."""
     actuators: int = 2
     """icoBoard: number of actuators (PWM), N."""
+    pwm_hz: float = 20000.0
+    """icoBoard: PWM frequency of the motor outputs the gateware makes, Hz (docs/gateware.md)."""
 
 
 class Geometry(Section):
@@ -216,6 +219,12 @@ class Sim(Section):
     encoder_noise: float = 0.0
     truth_rate_hz: float = 50.0
     camera: bool = True
+    icoboard: Literal["python", "gateware"] = "python"
+    """The simulated icoBoard: "python" (the protocol model, sim/icoboard.py) or "gateware"
+    (the FPGA design itself, compiled, its pins wired to the world; docs/gateware.md)."""
+    gateware_clk_hz: float = 1e6
+    """icoboard = "gateware": the FPGA clock in the simulation, Hz (the board's is 100 MHz;
+    scaled down so the simulation keeps real time)."""
 
 
 class Webapi(Section):

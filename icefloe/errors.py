@@ -41,6 +41,11 @@ class BoardMismatch(BoardError):
     """The board's START descriptor does not match the robot config; we refuse to run."""
 
 
+class GatewareError(IcefloeError):
+    """The icoBoard gateware cannot be made: a peripheral list it cannot build, a failed
+    toolchain step, or a design that does not meet its clock (``icefloe gateware build``)."""
+
+
 class NotReachable(IcefloeError):
     """A robot (its Zenoh router or a queryable) did not answer in time."""
 

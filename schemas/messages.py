@@ -217,11 +217,17 @@ class LoopStats(Message):
     timeouts: int = 0
     """Requests the board did not answer in time, since start."""
     unmatched: int = 0
-    """Good frames that answered no open request (late or duplicated replies), since start."""
+    """Good frames that answered no open request (duplicates, replies nobody asked for), since start."""
     garbage_bytes: int = 0
     """Bytes that were neither a frame nor board text, since start."""
     board_errors: int = 0
     """Errors the board reported itself (PenguinPi ``ERR:`` lines, icoBoard REJECTED), since start."""
+    stalled_reads: int = 0
+    """Reads of the shared memory between hwbridge's two processes that found the other one in the
+    middle of a write on every try and were put off, since start: the bus process reading the cycle's
+    state (it tries again after a back-off) plus the cycle reading the commands (that period stops
+    the wheels). Above 0, one of the two was descheduled mid-write: the machine is short of CPU
+    for them (no SCHED_FIFO, or many robots on one machine)."""
     late: int = 0
     """Replies that came after their request had timed out: counted, never used, since start."""
     commands_dropped: int = 0

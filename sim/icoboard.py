@@ -76,37 +76,23 @@ class Counters:
     seq_gaps: int = 0
     """v2: valid frames whose seq was not the previous one + 1."""
     watchdog_trips: int = 0
+    rejected: int = 0
+    """Bad frames of any kind, when the board says only that (the gateware)."""
 
     @property
     def bad_frames(self) -> int:
-        return self.bad_length + self.bad_crc + self.bad_opcode
+        return self.bad_length + self.bad_crc + self.bad_opcode + self.rejected
 
 
-class IcoBoardModel:
-    """The board's logic: `exchange` answers one SPI exchange, `tick` runs the watchdog."""
+class LineHandles:
+    """What every icoBoard model offers the simulator's handles: line noise, and the duty applied."""
 
-    def __init__(self, world: Wheels, wire: Wire, *, seed: int = 0) -> None:
-        """``wire``: the protocol and board shape; ``seed``: the bit flips of `corrupt`."""
-        self.world = world
-        self.wire = wire
-        self.counters = Counters()
-        self.running = False
-        self.pwm = [0] * wire.actuators
+    def __init__(self, seed: int) -> None:
+        self.pwm: list[int] = []
         """Raw signed duty applied to each actuator now (32767 = 100 %)."""
-        self.last_frame = b""
-        """The last request received, as it arrived (after any injected corruption)."""
-        self.forced_descriptor: Descriptor | None = None
-        """Test handle: what a v2 START reply says instead of the truth."""
-        self._offset = (0, 0)              # world counts at the last RESET
-        self._sample = (0,) * wire.sensors  # v1: counts sampled at the previous exchange
-        self._last_seq = 0                 # v2: seq of the last valid frame (the ack)
-        self._status = Status(0)           # v2: WATCHDOG and REJECTED flags
-        self._last_valid = 0.0             # v2: time of the last valid frame, s
         self._corrupt_in = 0
         self._corrupt_out = 0
         self._rng = random.Random(seed)
-
-    # ------------------------------------------------------------------ test handles
 
     def corrupt(self, requests: int = 0, replies: int = 0) -> None:
         """Flip one random bit in each of the next ``requests`` frames in / ``replies`` out."""
@@ -119,6 +105,42 @@ class IcoBoardModel:
         left, right = [*self.pwm, 0, 0][:2]
         return raw_to_duty(left), raw_to_duty(right)
 
+    def _line_in(self, frame: bytes) -> bytes:
+        """A request as it arrives: with a flipped bit while `corrupt` asks for it."""
+        if not self._corrupt_in:
+            return frame
+        self._corrupt_in -= 1
+        return flip_bit(frame, self._rng)
+
+    def _line_out(self, reply: bytes) -> bytes:
+        """A reply as it reaches the host (likewise)."""
+        if not self._corrupt_out:
+            return reply
+        self._corrupt_out -= 1
+        return flip_bit(reply, self._rng)
+
+
+class IcoBoardModel(LineHandles):
+    """The board's logic: `exchange` answers one SPI exchange, `tick` runs the watchdog."""
+
+    def __init__(self, world: Wheels, wire: Wire, *, seed: int = 0) -> None:
+        """``wire``: the protocol and board shape; ``seed``: the bit flips of `corrupt`."""
+        super().__init__(seed)
+        self.world = world
+        self.wire = wire
+        self.counters = Counters()
+        self.running = False
+        self.pwm = [0] * wire.actuators
+        self.last_frame = b""
+        """The last request received, as it arrived (after any injected corruption)."""
+        self.forced_descriptor: Descriptor | None = None
+        """Test handle: what a v2 START reply says instead of the truth."""
+        self._offset = (0, 0)              # world counts at the last RESET
+        self._sample = (0,) * wire.sensors  # v1: counts sampled at the previous exchange
+        self._last_seq = 0                 # v2: seq of the last valid frame (the ack)
+        self._status = Status(0)           # v2: WATCHDOG and REJECTED flags
+        self._last_valid = 0.0             # v2: time of the last valid frame, s
+
     # ------------------------------------------------------------------ the board
 
     def counts(self) -> tuple[int, ...]:
@@ -130,15 +152,9 @@ class IcoBoardModel:
     def exchange(self, frame: bytes, now: float) -> bytes:
         """One full-duplex SPI exchange at ``now`` (s): the host's bytes in, the board's out."""
         self.counters.frames += 1
-        if self._corrupt_in:
-            self._corrupt_in -= 1
-            frame = self._flip(frame)
-        self.last_frame = frame
+        frame = self.last_frame = self._line_in(frame)
         reply = self._v1(frame) if self.wire.version == 1 else self._v2(frame, now)
-        if self._corrupt_out:
-            self._corrupt_out -= 1
-            reply = self._flip(reply)
-        return reply
+        return self._line_out(reply)
 
     def tick(self, now: float) -> None:
         """Called every simulated millisecond: the v2 watchdog."""
@@ -215,13 +231,15 @@ class IcoBoardModel:
         else:
             self.counters.bad_opcode += 1
 
-    def _flip(self, frame: bytes) -> bytes:
-        if not frame:
-            return frame
-        bit = self._rng.randrange(len(frame) * 8)
-        out = bytearray(frame)
-        out[bit // 8] ^= 1 << (bit % 8)
-        return bytes(out)
+
+def flip_bit(frame: bytes, rng: random.Random) -> bytes:
+    """``frame`` with one random bit flipped (line noise, for the `corrupt` handles)."""
+    if not frame:
+        return frame
+    bit = rng.randrange(len(frame) * 8)
+    out = bytearray(frame)
+    out[bit // 8] ^= 1 << (bit % 8)
+    return bytes(out)
 
 
 def _opcode(frame: bytes) -> Op:
@@ -232,18 +250,33 @@ def _opcode(frame: bytes) -> Op:
         return Op.EMPTY
 
 
-class IcoBoardSim:
-    """`IcoBoardModel` behind the datagram socket ``board.sim_socket``, with its own I/O thread.
+class BoardModel(Protocol):
+    """What `IcoBoardSim` needs of a board model (`IcoBoardModel`, or the gateware's)."""
 
+    counters: Counters
+    last_frame: bytes
+
+    def exchange(self, frame: bytes, now: float) -> bytes: ...
+    def tick(self, now: float) -> None: ...
+
+
+class IcoBoardSim:
+    """A board model behind the datagram socket ``board.sim_socket``, with its own I/O thread.
+
+    The model is `IcoBoardModel`, or any object with the same `exchange`, `tick`
+    and handles (the gateware: `icefloe.sim.icoboard_gateware.GatewareBoardModel`).
     The simulator's clock calls `tick` once per simulated millisecond; the
     socket thread answers exchanges at the latest tick's time. Both take
-    `lock`, which the clock also holds while it steps the world.
+    `lock`, which the clock also holds while it steps the world. A model with
+    an ``advance(now)`` method gets it called first, without `lock`: its own
+    time runs there (it locks what it needs by itself).
     """
 
-    def __init__(self, world: Wheels, board: Board, *, seed: int = 0) -> None:
+    def __init__(self, world: Wheels, board: Board, *, seed: int = 0,
+                 model: BoardModel | None = None) -> None:
         self.path = Path(board.sim_socket)
         self.lock = threading.RLock()
-        self.model = IcoBoardModel(world, Wire.for_board(board), seed=seed)
+        self.model: BoardModel = model or IcoBoardModel(world, Wire.for_board(board), seed=seed)
         self._now = 0.0
         self._delay = (0.0, 0)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -267,6 +300,9 @@ class IcoBoardSim:
             self._delay = (seconds, count)
 
     def tick(self, now: float) -> None:
+        advance = getattr(self.model, "advance", None)
+        if advance is not None:
+            advance(now)
         with self.lock:
             self._now = now
             self.model.tick(now)
@@ -298,3 +334,6 @@ class IcoBoardSim:
         with contextlib.suppress(FileNotFoundError):
             if self.path.is_socket():
                 os.unlink(self.path)
+        close_model = getattr(self.model, "close", None)
+        if close_model is not None:
+            close_model()

@@ -9,6 +9,9 @@ robot heard); the rate check is relative to each robot's own configured rate.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import io
 import sys
 from pathlib import Path
 
@@ -18,14 +21,17 @@ from conftest import ROOT
 sys.path.insert(0, str(ROOT / "bench"))
 import lab_scale  # the bench script is the harness
 
-pytestmark = pytest.mark.slow
 
-
+@pytest.mark.slow
 async def test_a_lab_router_keeps_robots_apart(tmp_path: Path) -> None:
     with lab_scale.Lab(tmp_path, robots=3) as lab:
         lab.start_router()
         report = await lab_scale.measure(lab, seconds=4.0, start_timeout=45.0)
         assert lab.router.alive(), "the lab router died"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        lab_scale.print_report(report)
+    print(printed.getvalue())  # shown with a failure
     assert lab.killed == [], "these did not stop on SIGINT"
     own_a, own_b = report.driven
     intruded = report.intruded
@@ -51,3 +57,84 @@ async def test_a_lab_router_keeps_robots_apart(tmp_path: Path) -> None:
     for r in robots.values():
         assert r.configured_hz == lab.config(r.name).odometry.rate_hz
         assert r.rate_hz >= lab_scale.MIN_RATE * r.configured_hz, (r.name, r.rate_hz, r.configured_hz)
+
+    # The driven robots truly moved what their delivered twists asked for, and nothing crashed or
+    # restarted: the bench's verdict is "all checks passed".
+    for name in report.driven:
+        assert robots[name].moved_m == pytest.approx(robots[name].asked_m, rel=lab_scale.DISTANCE_TOLERANCE)
+    assert (report.crashed, report.restarted) == ([], [])
+    assert report.failures() == []
+
+
+def a_report(**changes: object) -> lab_scale.Report:
+    """A report of three robots that passes every check, with ``changes`` to one driven robot or the run."""
+    def robot(name: str, role: str, moved: float, asked: float, heard: int) -> lab_scale.RobotResult:
+        return lab_scale.RobotResult(name=name, role=role, configured_hz=25.0, poses=100, rate_hz=25.0,
+                                     moved_m=moved, asked_m=asked, sim_pace=1.0, twists_sent=40, twists_heard=heard,
+                                     cycle_hz=250.0, overruns=0, stalled_reads=0)
+
+    robots = {"r0": robot("r0", "own credentials", 0.660, 0.661, 40),
+              "r1": robot("r1", "own credentials", 0.650, 0.661, 40),
+              "r2": robot("r2", "r0's credentials", 0.0, 0.0, 0)}
+    run = {k: v for k, v in changes.items() if k in ("crashed", "restarted")}
+    robots["r0"] = dataclasses.replace(robots["r0"], **{k: v for k, v in changes.items() if k not in run})
+    return lab_scale.Report(rates=lab_scale.Rates(), speed=0.15, window_s=4.0, startup_s=3.0,
+                            seen={n: set(lab_scale.SERVICES) for n in robots}, robots=robots, cpu={},
+                            machine_pct=50.0, driven=("r0", "r1"), intruded="r2",
+                            crashed=run.get("crashed", []), restarted=run.get("restarted", []))
+
+
+def test_the_bench_fails_a_robot_that_did_not_go_as_far_as_asked_and_any_crash() -> None:
+    assert a_report().failures() == []
+    # 2.98 m asked, 0.40 m moved: the run the first version of the bench passed.
+    short = a_report(moved_m=0.40, asked_m=2.98, twists_heard=199).failures()
+    assert short == ["r0: moved 0.400 m of the 2.980 m its 199 delivered twists asked for (off by more than 5%)"]
+    assert a_report(moved_m=0.661 * 1.06).failures() != []          # too far is as wrong as too short
+    assert a_report(moved_m=0.661 * 1.04).failures() == []
+    assert a_report(moved_m=float("nan")).failures() == ["r0: no sim/truth before and after the window"]
+
+    crashed = a_report(crashed=["r1/hwbridge exited (1):\nTimeoutError"]).failures()
+    assert crashed == ["crashed: r1/hwbridge exited (1):\nTimeoutError"]
+    assert a_report(restarted=["r1: hwbridge's real-time cycle [10] is now [11]"]).failures() != []
+
+
+# ---------------------------------------------------------------------------- the router load mode
+
+
+def test_router_load_stand_ins_carry_a_robots_keys_at_its_configured_rates_with_real_sized_payloads() -> None:
+    import lab_load
+
+    from icefloe import config as config_mod
+    from icefloe.schemas import codec, keys
+    from icefloe.schemas import messages as m
+
+    config = config_mod.load(None)
+    flows = {f.topic.name: f for f in lab_load.robot_flows(config)}
+    assert flows["hw/wheels"].rate_hz == config.hwbridge.wheels_rate_hz
+    assert flows["odom/pose"].rate_hz == config.odometry.rate_hz
+    assert flows["camera/landmarks"].rate_hz == config.camera.fps
+    assert flows["camera/image"].rate_hz == config.camera.image_rate_hz
+    for name, flow in flows.items():  # each payload is a message of its key's type, as services send it
+        topic = keys.TABLE[name]
+        assert topic.kind == "out" and flow.service in lab_load.ROBOT_SIDE
+        codec.decode(flow.payload, codec.MSGPACK, topic.type)
+    image = codec.decode(flows["camera/image"].payload, codec.MSGPACK, m.Image)
+    assert image.data[:2] == b"\xff\xd8" and (image.width, image.height) == (config.camera.image_width,
+                                                                              config.camera.image_height)
+    assert len(codec.decode(flows["camera/landmarks"].payload, codec.MSGPACK, m.Landmarks).landmarks) >= 2
+    # Everything a robot publishes has a reader: its own services or the laptop's viewer.
+    assert all(lab_load.subscribers(keys.TABLE[name]) >= 1 for name in flows)
+
+
+@pytest.mark.slow
+def test_router_load_measures_a_lab_router_with_two_stand_in_robots(tmp_path: Path) -> None:
+    import lab_load
+
+    from icefloe import config as config_mod
+
+    flows = lab_load.robot_flows(config_mod.load(None))
+    row = lab_load.measure(2, 2.0, flows, workers=1, root=tmp_path)
+    assert row.sessions == 2 * (len(lab_load.ROBOT_SIDE) + 1) + 2
+    assert row.probes > 100, row                     # the probe's hw/wheels came through, 100 Hz
+    assert row.delivered >= 0.95, row                # a robot's traffic reached its watcher
+    assert row.router_cpu > 0 and row.router_rss_mb > 0, row

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import msgspec
 import pytest
+from icoboard_vectors import DUTY_TOLERANCE, SCENARIOS, Duty, Move, Send, Trips, Wait
 
 from icefloe.config import Board, Geometry
 from icefloe.errors import BoardMismatch
@@ -248,3 +249,40 @@ def test_gpio_lines_hold_release_and_report_changes() -> None:
 def test_board_config_is_the_wire() -> None:
     board = msgspec.structs.replace(Board(), protocol=1, sensors=3, actuators=1)
     assert Wire.for_board(board) == Wire(1, 3, 1)
+
+
+class _Wheels:
+    """The world as the shared vectors move it: encoder counts set by hand, duty recorded."""
+
+    def __init__(self) -> None:
+        self.position = (0, 0)
+        self.duty = (0.0, 0.0)
+
+    def set_duty(self, left: float, right: float) -> None:
+        self.duty = (left, right)
+
+    def counts(self) -> tuple[int, int]:
+        return self.position
+
+
+@pytest.mark.parametrize("name", sorted(SCENARIOS))
+def test_the_python_model_meets_the_shared_vectors(name: str) -> None:
+    wheels = _Wheels()
+    model = IcoBoardModel(wheels, Wire(2))
+    ms = 0
+    for step in SCENARIOS[name]:
+        match step:
+            case Send():
+                reply = model.exchange(step.request, ms / 1000)
+                assert reply[0] == step.status, step
+                assert step.reply is None or reply == step.reply, step
+            case Move():
+                wheels.position = (step.left, step.right)
+            case Wait():
+                for _ in range(step.ms):
+                    ms += 1
+                    model.tick(ms / 1000)
+            case Duty():
+                assert model.duty == pytest.approx((step.left, step.right), abs=DUTY_TOLERANCE), step
+            case Trips():
+                assert model.counters.watchdog_trips == step.count

@@ -4,6 +4,7 @@
     bus.py       status, topics, echo, hz, pub, query  look at and talk to the bus
     schemas.py   schemas                             the JSON Schemas of the messages
     viz.py       viz                                 the Rerun view of robots
+    gateware.py  gateware build, pins                the icoBoard's FPGA design
 
 A verb module has a ``register(verbs)`` function that adds its sub-parsers, each with
 ``set_defaults(run=<function of the parsed args returning an exit status>)``. To add a verb
@@ -19,7 +20,7 @@ from collections.abc import Sequence
 
 from ..errors import IcefloeError
 
-VERB_MODULES = ("robot", "bus", "schemas", "viz")
+VERB_MODULES = ("robot", "bus", "schemas", "viz", "gateware")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\

@@ -55,7 +55,8 @@ rejected on the way in. The CRC's non-zero init and xorout make a stuck-low
 
 The START hash is CRC-32 (zlib) of the peripheral list written as
 ``"encoder,encoder|pwm,pwm"`` (sensors, then actuators), so two boards with the
-same counts but different peripherals do not match (thesis §6.2.3).
+same counts but different peripherals do not match (thesis §6.2.3). `Peripherals` is
+that list, shared by hwbridge's check and the gateware that answers START.
 """
 
 from __future__ import annotations
@@ -176,6 +177,41 @@ def peripheral_hash(sensors: Sequence[str], actuators: Sequence[str]) -> int:
     return zlib.crc32(text.encode())
 
 
+@dataclass(frozen=True)
+class Peripherals:
+    """A board's peripheral list (thesis §6.2.2, §6.2.3): the one definition of what is on the board.
+
+    The gateware (``icefloe.gateware``) builds one quadrature decoder per ``"encoder"``
+    and one PWM + direction output per ``"pwm"`` from it, and answers START with its
+    `descriptor`; hwbridge checks that reply against the descriptor of the list its
+    config gives (`Wire.descriptor`). Both ends call this class, so they cannot drift.
+    """
+
+    sensors: tuple[str, ...] = ("encoder", "encoder")
+    """Sensor kinds in wire order (sensor 0 = left wheel encoder, 1 = right)."""
+    actuators: tuple[str, ...] = ("pwm", "pwm")
+    """Actuator kinds in wire order (actuator 0 = left motor, 1 = right)."""
+
+    @classmethod
+    def of(cls, sensors: int, actuators: int) -> Peripherals:
+        """``sensors`` encoders and ``actuators`` PWM outputs (what a robot config describes)."""
+        return cls(("encoder",) * sensors, ("pwm",) * actuators)
+
+    @classmethod
+    def for_board(cls, board: Board) -> Peripherals:
+        """The peripheral list of the ``[board]`` table of a robot config."""
+        return cls.of(board.sensors, board.actuators)
+
+    @property
+    def hash(self) -> int:
+        return peripheral_hash(self.sensors, self.actuators)
+
+    @property
+    def descriptor(self) -> Descriptor:
+        """What a board with this list says in its v2 START reply."""
+        return Descriptor(len(self.sensors), len(self.actuators), WIDTH, self.hash)
+
+
 # ---------------------------------------------------------------------------------- frames
 
 
@@ -195,8 +231,7 @@ class Descriptor:
     @classmethod
     def of(cls, sensors: int, actuators: int) -> Descriptor:
         """The descriptor of a board with ``sensors`` encoders and ``actuators`` PWM outputs."""
-        return cls(sensors, actuators, WIDTH,
-                   peripheral_hash(["encoder"] * sensors, ["pwm"] * actuators))
+        return Peripherals.of(sensors, actuators).descriptor
 
     def check(self, expected: Descriptor) -> None:
         """Raise `BoardMismatch` naming every difference from ``expected`` (the config)."""
@@ -265,8 +300,12 @@ class Wire:
         return max(self.sensors, self.actuators)
 
     @property
+    def peripherals(self) -> Peripherals:
+        return Peripherals.of(self.sensors, self.actuators)
+
+    @property
     def descriptor(self) -> Descriptor:
-        return Descriptor.of(self.sensors, self.actuators)
+        return self.peripherals.descriptor
 
     def length(self, op: Op) -> int:
         """Bytes in one exchange of ``op`` (request and reply alike)."""

@@ -39,7 +39,7 @@ from .control import (
     twist_to_wheels,
 )
 from .ordering import CommandOrder, Origin
-from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, Shared
+from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, STATE_FIELDS, Shared
 
 MOTION_STEP_S = 0.02
 """A timed motion re-sends its targets at 50 Hz (which also feeds the deadman)."""
@@ -186,7 +186,7 @@ class Bridge:
         try:
             return await asyncio.wait_for(waiter, timeout)
         except TimeoutError:
-            state = self.shared.read_state()
+            state = self.shared.read_state() or dict.fromkeys(STATE_FIELDS, 0)  # None: mid-write
             age = (time.monotonic_ns() - state["sample_ns"]) * 1e-9 if state["sample_ns"] else -1
             raise NotConfirmed(
                 f"the board did not confirm the stop within {timeout:g} s (board link "
@@ -197,6 +197,9 @@ class Bridge:
         """Answer the waiting `confirmed` calls from the cycle's state, every millisecond."""
         while self._waiting:
             state = self.shared.read_state()
+            if state is None:  # the cycle is in the middle of a write: look again next time
+                await asyncio.sleep(CONFIRM_POLL_S)
+                continue
             waiting, self._waiting = self._waiting, []
             for number, waiter in waiting:
                 if waiter.done():  # timed out
@@ -214,9 +217,11 @@ class Bridge:
     def kick(self) -> None:
         """Wake the cycle (SIGUSR1) so it sends a latched stop now, not at its next period."""
         pid = self.rt_pid
+        state = None if pid is None else self.shared.read_state()
         # The cycle writes its pid once its SIGUSR1 handler is in place; before that the
-        # signal would kill it, and the next period applies the stop anyway.
-        if pid is None or self.shared.read_state()["pid"] != pid:
+        # signal would kill it, and the next period applies the stop anyway (as it does when
+        # the cycle is in the middle of writing its state: None).
+        if state is None or state["pid"] != pid:
             return
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGUSR1)
@@ -291,15 +296,18 @@ class Bridge:
         if not msg.rest:
             return self.wheels_message(state)
         deadline = time.monotonic() + HALT_TIMEOUT_S
+        last = dict.fromkeys(STATE_FIELDS, 0)
         while time.monotonic() < deadline:
-            state = self.shared.read_state()
-            fresh = state["sample_ns"] > time.monotonic_ns() - 100_000_000
-            if (fresh and abs(state["speed_left"]) < HALTED_SPEED
-                    and abs(state["speed_right"]) < HALTED_SPEED):
-                return self.wheels_message(state)
+            state = self.shared.read_state()  # None: the cycle is in the middle of a write
+            if state is not None:
+                last = state
+                fresh = state["sample_ns"] > time.monotonic_ns() - 100_000_000
+                if (fresh and abs(state["speed_left"]) < HALTED_SPEED
+                        and abs(state["speed_right"]) < HALTED_SPEED):
+                    return self.wheels_message(state)
             await asyncio.sleep(0.01)
         self.log.warning("cmd/halt: wheels not measured at rest within %.0f s", HALT_TIMEOUT_S)
-        return self.wheels_message(self.shared.read_state())
+        return self.wheels_message(last)
 
     # ------------------------------------------------------------------ board I/O
 
@@ -368,8 +376,10 @@ class LoopReport:
         self._prev_t = 0.0
         self._hist = [0] * HIST_BINS
 
-    def make(self, state: dict, hist, now: float, dropped: int = 0) -> m.LoopStats | None:
-        """``dropped``: motion commands the bus side refused so far (`Bridge.dropped`)."""
+    def make(self, state: dict, hist, now: float, stalled_reads: int = 0,
+             dropped: int = 0) -> m.LoopStats | None:
+        """``stalled_reads``: the bus process's own count (`Shared.stalled_reads`); the cycle's is in
+        ``state``. ``dropped``: motion commands the bus side refused so far (`Bridge.dropped`)."""
         counts = list(hist)
         prev, self._prev = self._prev, state
         delta = [c - p for c, p in zip(counts, self._hist, strict=True)]
@@ -393,5 +403,6 @@ class LoopReport:
             link_rate=(state["exchanges"] - prev["exchanges"]) / elapsed,
             crc_errors=state["crc_errors"], timeouts=state["timeouts"],
             unmatched=state["unmatched"], garbage_bytes=state["garbage_bytes"],
-            board_errors=state["board_errors"], late=state["late"], commands_dropped=dropped,
+            board_errors=state["board_errors"], stalled_reads=state["stalled_reads"] + stalled_reads,
+            late=state["late"], commands_dropped=dropped,
         )

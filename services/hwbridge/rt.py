@@ -167,11 +167,12 @@ class Cycle:
 
     def step(self, now_ns: int) -> None:
         """Everything a period does after waking up at ``now_ns`` (CLOCK_MONOTONIC)."""
-        try:
-            left, right, fresh_ns, stop, epoch, stop_seq = self.shared.read_commands()
-        except TimeoutError:
+        commands = self.shared.read_commands()
+        if commands is None:  # the bus process was descheduled mid-write: stop for this period
             left = right = 0.0
-            fresh_ns, stop, epoch, stop_seq = 0, 1, self._epoch, 0  # a writer died mid-write: stop
+            fresh_ns, stop, epoch, stop_seq = 0, 1, self._epoch, self.confirmed
+        else:
+            left, right, fresh_ns, stop, epoch, stop_seq = commands
         if epoch != self._epoch:
             self._epoch = epoch
             self.period_max = self.latency_max = 0
@@ -199,7 +200,7 @@ class Cycle:
     def _confirm(self, stop: int, stop_seq: int) -> None:
         """Report stop ``stop_seq`` confirmed once the board is verified at rest duty."""
         if stop and self.link_up and self.board.stop_confirmed:
-            self.confirmed = stop_seq
+            self.confirmed = max(self.confirmed, stop_seq)
 
     def stop_now(self, now_ns: int, deadline_ns: int) -> None:
         """Send a freshly latched stop to the board now, between two periods.
@@ -212,10 +213,9 @@ class Cycle:
         """
         if not self.link_up or deadline_ns - now_ns < self.period_ns // KICK_GUARD_FRACTION:
             return  # no board to tell, or the period, due in a moment, tells it
-        try:
-            stop, stop_seq = self.shared.read_commands()[3::2]
-        except TimeoutError:
-            stop, stop_seq = 1, 0
+        commands = self.shared.read_commands()
+        # mid-write: stop, as `step` does (and confirm no new number)
+        stop, stop_seq = (1, self.confirmed) if commands is None else (commands[3], commands[5])
         if not stop or self.stop_reason != STOP_NONE:
             return  # no stop latched, or the wheels are stopped already
         self.stop_reason = STOP_LATCHED
@@ -278,7 +278,8 @@ class Cycle:
             b.garbage_bytes, b.board_errors,
             b.battery_voltage, b.battery_current, self._started,
             b.battery_ns, b.button_presses, b.dip, b.late, b.lost, self.io_dropped, 0,
-            os.getpid(), int(self.mismatch), b.watchdog, self.kicks, self.confirmed,
+            os.getpid(), int(self.mismatch), b.watchdog, self.kicks, self.shared.stalled_reads,
+            self.confirmed,
         )
         self.shared.write_state(s)
 

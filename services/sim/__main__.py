@@ -24,6 +24,7 @@ import time
 from collections.abc import Awaitable, Callable
 
 from icefloe.config import RobotConfig
+from icefloe.errors import IcefloeError
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -65,7 +66,7 @@ async def main(config: RobotConfig) -> None:
         node.queryable(keys.SIM_CONTROL, _control(ready))
         try:
             sim = Simulator(config, on_gpio=on_gpio)
-        except (OSError, ValueError) as exc:  # e.g. the socket's folder is not writable
+        except (OSError, ValueError, IcefloeError) as exc:  # e.g. the socket's folder is not writable
             node.log.error("cannot start the simulated %s: %s", config.board.kind, exc)
             raise SystemExit(1) from None
         try:

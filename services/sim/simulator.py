@@ -17,13 +17,31 @@ from icefloe.errors import BadPayload
 from icefloe.schemas import messages as m
 from icefloe.sim.clock import SimClock
 from icefloe.sim.gpio import BUTTON, GpioLines
-from icefloe.sim.icoboard import IcoBoardSim
+from icefloe.sim.icoboard import BoardModel, IcoBoardSim
 from icefloe.sim.penguinpi import PenguinPiSim
 from icefloe.sim.world import World
 from icefloe.wire import penguinpi
 from icefloe.wire.icoboard import Descriptor
 
 log = logging.getLogger("icefloe.sim")
+
+
+GATEWARE_CATCH_UP = 5
+"""Steps the clock may run back to back to catch up, with the gateware as the board (ms)."""
+
+
+def _icoboard_model(config: RobotConfig, world: World) -> BoardModel | None:
+    """The gateware as the board when the config asks for it (None: the Python model)."""
+    if config.sim.icoboard != "gateware":
+        return None
+    if config.board.protocol != 2:
+        raise ValueError("the icoBoard gateware speaks protocol v2 only ([board] protocol = 2)")
+    try:
+        from icefloe.sim.icoboard_gateware import GatewareBoardModel
+    except ImportError as exc:
+        raise ValueError(f'[sim] icoboard = "gateware" needs the gateware extra ({exc}): '
+                         "pip install -e '.[gateware]'") from None
+    return GatewareBoardModel(world, config.board, clk_hz=config.sim.gateware_clk_hz, seed=world.seed)
 
 
 class Simulator:
@@ -38,7 +56,8 @@ class Simulator:
                            encoder_noise=sim.encoder_noise)
         self.board: IcoBoardSim | PenguinPiSim
         if config.board.kind == "icoboard":
-            self.board = IcoBoardSim(self.world, config.board, seed=self.world.seed)
+            self.board = IcoBoardSim(self.world, config.board, seed=self.world.seed,
+                                     model=_icoboard_model(config, self.world))
             self.kind = f"icoboard-v{config.board.protocol}"
             self.gpio = GpioLines(on_change=on_gpio)
             self._lock = self.board.lock
@@ -52,7 +71,12 @@ class Simulator:
             firmware.daemon_alive_source = lambda: self.gpio.ack == 1
             self._lock = firmware.lock
         # Each simulated millisecond: the world moves, then the board and the lines see it.
-        self.clock = SimClock(self.world, [self.board, self.gpio])
+        # The gateware's watchdog counts board time: racing through a long backlog of steps
+        # with none of the host's frames in between would trip it. On an overloaded machine
+        # its simulated time slows down instead (steps dropped), as the world's does.
+        gateware = config.board.kind == "icoboard" and config.sim.icoboard == "gateware"
+        catch_up = GATEWARE_CATCH_UP if gateware else 100
+        self.clock = SimClock(self.world, [self.board, self.gpio], max_catch_up=catch_up)
 
     def start(self) -> None:
         self.clock.start()
