@@ -4,16 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from ..errors import IcefloeError
 from ..services.viz.__main__ import __doc__ as VIZ_DOC
 from ..services.viz.__main__ import add_service_arguments
 
 
 def viz(args: argparse.Namespace) -> int:
-    try:
-        import rerun  # noqa: F401
-    except ImportError as exc:
-        raise IcefloeError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
     from ..services.viz.__main__ import start
 
     start(args)

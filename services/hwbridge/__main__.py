@@ -247,6 +247,8 @@ def command_inputs(node: Node, bridge: Bridge) -> list[Any]:
 
         def on_sample(sample: zenoh.Sample) -> None:
             arrival = time.monotonic_ns()
+            if not node.own_key(key_expr, str(sample.key_expr)):
+                return  # a wildcard put (icefloe/*/cmd/stop) is no command for this robot
             try:
                 msg = codec.decode(sample.payload.to_bytes(), str(sample.encoding), topic.type, key_expr)
             except BadPayload as exc:
@@ -278,6 +280,9 @@ def command_inputs(node: Node, bridge: Bridge) -> list[Any]:
 
         def on_query(query: zenoh.Query) -> None:
             arrival = time.monotonic_ns()
+            if not node.own_key(key_expr, str(query.key_expr)):
+                query.drop()  # no answer: a command is taken on its own key only
+                return
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 encoding = str(query.encoding) if query.encoding is not None else ""

@@ -25,6 +25,9 @@ from icefloe.wire.icoboard import Descriptor
 
 log = logging.getLogger("icefloe.sim")
 
+LED_NUMBERS = ("red", "led2", "led3", "led4")
+"""The firmware's name of `Led` number 1..4 (`SimState.leds` bit 0..3)."""
+
 
 GATEWARE_CATCH_UP = 5
 """Steps the clock may run back to back to catch up, with the gateware as the board (ms)."""
@@ -97,12 +100,14 @@ class Simulator:
             ico = self.board.model
             last, bad, trips = ico.last_frame, ico.counters.bad_frames, ico.counters.watchdog_trips
             integrators = (0, 0)  # the icoBoard's controller runs in hwbridge
+            leds = 0
         else:  # the PenguinPi: its last good datagram, and its error count
             model = self.board.model
             frame = model.last_datagram
             last = penguinpi.encode_frame(frame.address, frame.opcode, frame.payload) if frame else b""
             bad, trips = model.errors, 0
             integrators = (model.left.integral, model.right.integral)
+            leds = sum(1 << n for n, name in enumerate(LED_NUMBERS) if model.led_lit(name))
         ticks = self.world.counts()
         return m.SimState(
             stamp=time.time_ns(), sim_time=self.clock.now, seed=self.world.seed,
@@ -113,7 +118,8 @@ class Simulator:
             gpio_button=self.gpio.button, gpio_request=self.gpio.request, gpio_ack=self.gpio.ack,
             peak_duty=self.world.peak_duty, ticks_left=ticks[0], ticks_right=ticks[1],
             integrator_left=integrators[0], integrator_right=integrators[1],
-            zero_duty_since=self.world.zero_duty_since, counts_changed=self.world.counts_changed)
+            zero_duty_since=self.world.zero_duty_since, counts_changed=self.world.counts_changed,
+            leds=leds)
 
     # ------------------------------------------------------------------ handles
 

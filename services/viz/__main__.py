@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import argparse
 import functools
+import sys
 from collections.abc import Sequence
 
+from icefloe.errors import ConfigError
 from icefloe.runtime import run
 
 from .options import add_arguments, options_from
+from .viewer import display_problem, how_to_look
 
 
 def add_service_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,7 +30,12 @@ def add_service_arguments(parser: argparse.ArgumentParser) -> None:
 
 def start(args: argparse.Namespace) -> None:
     """Run the viz service with parsed options until it ends or Ctrl-C."""
-    from .app import main  # imports Rerun (the `viz` extra)
+    if not (args.save or args.serve) and (problem := display_problem()):  # before seconds of importing Rerun
+        raise ConfigError(f"cannot open the Rerun viewer: {problem}; {how_to_look()}")
+    try:
+        from .app import main  # imports Rerun (the `viz` extra)
+    except ImportError as exc:
+        raise ConfigError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
 
     common = ["--log-level", args.log_level]
     if args.config:
@@ -41,7 +49,11 @@ def cli(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="icefloe viz", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     add_service_arguments(parser)
-    start(parser.parse_args(argv))
+    try:
+        start(parser.parse_args(argv))
+    except ConfigError as exc:
+        print(f"icefloe viz: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 if __name__ == "__main__":
