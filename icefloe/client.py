@@ -32,7 +32,6 @@ import asyncio
 import contextlib
 import functools
 import inspect
-import itertools
 import logging
 import math
 import threading
@@ -407,11 +406,6 @@ class AsyncRobot:
         self._moved = False
         self._stop_sub: Any = None
         self.leds: Leds
-        self._sender = ""
-        self._seq = itertools.count(1)
-        # `stamp` comes from a clock that never jumps back (the wall clock read once, then
-        # advanced by the monotonic clock): hwbridge learns its offset from the robot's.
-        self._wall0, self._mono0 = time.time_ns(), time.monotonic_ns()
         self.clamp = clamp
         self.buttons = Buttons()
         """The robot's buttons (see `Button`): ``robot.buttons["S4"].when_pressed = hello``."""
@@ -444,7 +438,6 @@ class AsyncRobot:
                                        f"within {connect_timeout} s: {why}") from None
                 await asyncio.sleep(0.2)
         await self.node.__aenter__()  # the router answers: this opens at once
-        self._sender = str(self.node.session.zid())
         self._wheels = self.node.publisher(keys.WHEELS_CMD)
         self._stop = self.node.publisher(keys.STOP)
         self._oled = self.node.publisher(keys.OLED_TEXT)
@@ -657,8 +650,7 @@ class AsyncRobot:
     def command(self, kind: type[C], **fields: Any) -> C:
         """A command message of type ``kind`` (`m.Twist`, `m.Stop`, ...) with ``fields``, numbered
         and stamped as this client's next command. For publishing a command yourself."""
-        stamp = self._wall0 + time.monotonic_ns() - self._mono0
-        return kind(sender=self._sender, seq=next(self._seq), stamp=stamp, **fields)
+        return self.node.command(kind, **fields)
 
     async def set_velocity(self, left: float, right: float, duration: float | None = None,
                            accel: float | None = None) -> m.MotionDone | None:
