@@ -300,6 +300,13 @@ def _decoder(topic: Topic) -> Callable[[RawSample], Any]:
     return decode
 
 
+def decode_query(query: zenoh.Query, kind: type[T], key_expr: str) -> T:
+    """A query's request as a ``kind`` message; `BadPayload` naming ``key_expr`` if it is not one."""
+    payload = query.payload.to_bytes() if query.payload is not None else b""
+    encoding = str(query.encoding) if query.encoding is not None else ""
+    return codec.decode(payload, encoding, kind, key_expr)
+
+
 class Node:
     """One service's connection to the bus. Use as ``async with Node(name, config) as node``."""
 
@@ -429,9 +436,7 @@ class Node:
                 query.drop()  # no answer: a command is taken on its own key only
                 return
             try:
-                payload = query.payload.to_bytes() if query.payload is not None else b""
-                encoding = str(query.encoding) if query.encoding is not None else ""
-                request = codec.decode(payload, encoding, topic.type, key_expr)
+                request = decode_query(query, topic.type, key_expr)
                 reply = await handler(request)
                 query.reply(key_expr, codec.encode(reply), encoding=MSGPACK)
             except BadPayload as exc:

@@ -34,7 +34,7 @@ import zenoh
 
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload, BoardError, ConfigError, NotConfirmed
-from icefloe.runtime import MSGPACK, Node, run
+from icefloe.runtime import MSGPACK, Node, decode_query, run
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
@@ -284,9 +284,7 @@ def command_inputs(node: Node, bridge: Bridge) -> list[Any]:
                 query.drop()  # no answer: a command is taken on its own key only
                 return
             try:
-                payload = query.payload.to_bytes() if query.payload is not None else b""
-                encoding = str(query.encoding) if query.encoding is not None else ""
-                msg = codec.decode(payload, encoding, topic.type, key_expr)
+                msg = decode_query(query, topic.type, key_expr)
             except BadPayload as exc:
                 bridge.limited.warning(f"bad:{topic.name}", f"rejected query: {exc}")
                 query.reply_err(str(exc))
