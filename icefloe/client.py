@@ -58,6 +58,11 @@ from .schemas.keys import Topic
 T = TypeVar("T")
 C = TypeVar("C", bound=m.Command)
 
+CONFIRM_WAIT = 3.0
+"""How long hwbridge tries to confirm a stop before it answers that it could not, s: `AsyncRobot.stop`
+waits that much longer than its ``timeout``, so that a slow confirmation on a busy robot still
+arrives, and a failed one arrives with hwbridge's reason."""
+
 CONNECT_TIMEOUT = 1.0
 """How long `AsyncRobot.open` retries a router that does not answer, by default, s: long enough
 for a router that is starting, short enough that a script run without a robot says so at once."""
@@ -745,7 +750,7 @@ class AsyncRobot:
             return None
         halt = m.Halt(sender=stop.sender, seq=stop.seq, stamp=stop.stamp, rest=False)
         try:
-            return await self.node.query(keys.HALT, halt, timeout=self.timeout)
+            return await self.node.query(keys.HALT, halt, timeout=self.timeout + CONFIRM_WAIT)
         except BadPayload as exc:  # hwbridge's answer: why it could not confirm
             raise NotConfirmed(str(exc)) from None
 

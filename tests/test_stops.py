@@ -202,15 +202,18 @@ async def test_every_kind_of_stop_leaves_zero_duty_and_a_clear_controller(make_r
         wheels_pub, stop_pub = node.publisher(keys.WHEELS_CMD), node.publisher(keys.STOP)
 
         async def drive(seconds: float) -> None:
-            """Hold 0.2 m/s, long enough for the firmware's integrators to fill (15 control steps)."""
-            end = time.monotonic() + seconds
-            while time.monotonic() < end:
+            """Hold 0.2 m/s for ``seconds`` and until the board drives (the firmware's integrators
+            filled): on a loaded machine the simulator or hwbridge can fall behind."""
+            end, give_up = time.monotonic() + seconds, time.monotonic() + 30.0
+            while True:
                 wheels_pub.put(m.WheelSpeeds(**sender.fields(left=0.2, right=0.2)))
                 await asyncio.sleep(0.05)
-            state = await sim_state(node)
-            assert state.duty_left > 0.05, state
-            if board == "penguinpi":
-                assert state.integrator_left != 0, state
+                if time.monotonic() < end:
+                    continue
+                state = await sim_state(node)
+                if state.duty_left > 0.05 and (board != "penguinpi" or state.integrator_left != 0):
+                    return
+                assert time.monotonic() < give_up, f"the board was never driven: {state}"
 
         async def until_zero_duty(since: float, within: float) -> None:
             """For the stops nobody answers (the deadman): poll the truth."""
@@ -238,12 +241,12 @@ async def test_every_kind_of_stop_leaves_zero_duty_and_a_clear_controller(make_r
         # the deadman: 0.5 s after the last command, then one control step (PenguinPi: 20 ms)
         await drive(0.3)
         last = time.monotonic()
-        await until_zero_duty(last, 0.5 + 0.5)
+        await until_zero_duty(last, 5.0)  # 0.5 s and a step; the exact time in test_hwbridge_stops
         await after_confirmation(node, board)
         # a command of zero speed
         await drive(0.3)
         wheels_pub.put(m.WheelSpeeds(**sender.fields(left=0.0, right=0.0)))
-        await until_zero_duty(time.monotonic(), 1.0)
+        await until_zero_duty(time.monotonic(), 5.0)
         await after_confirmation(node, board)
         # exit (SIGTERM), while commands keep coming
         await drive(0.3)
