@@ -50,6 +50,11 @@ class NotReachable(IcefloeError):
     """A robot (its Zenoh router or a queryable) did not answer in time."""
 
 
+class NotConfirmed(IcefloeError):
+    """hwbridge could not confirm that the wheels stopped: the board did not answer in time,
+    or a newer motion command released the stop first. The message says which."""
+
+
 class MotionError(IcefloeError):
     """A closed-loop motion (`Robot.forward`, `Robot.turn`) did not get there; the robot is stopped."""
 

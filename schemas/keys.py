@@ -55,8 +55,9 @@ BOARD_TEXT = Topic("io/text", m.OledText, "in")
 """Raw user text for the board's own display (PenguinPi firmware user screen), via hwbridge."""
 BOARD_SCREEN = Topic("io/screen", m.OledScreen, "in")
 """Select the board's own display screen (PenguinPi HAT_SET_SCREEN), via hwbridge."""
-HALT = Topic("cmd/halt", m.Stop, "query", reply=m.Wheels)
-"""Stop the wheels and answer once they have stopped (the power service uses it before power-off)."""
+HALT = Topic("cmd/halt", m.Halt, "query", reply=m.Wheels)
+"""Stop the wheels and answer once hwbridge has confirmed it: the board at zero duty and, with
+``rest`` (the default), the wheels at rest (the power service asks before power-off)."""
 
 WHEELS = Topic("hw/wheels", m.Wheels, "out")
 LOOP = Topic("hw/loop", m.LoopStats, "out")

@@ -20,7 +20,7 @@ from ..errors import BadPayload
 from ..runtime import Node, RawSample, load_config
 from ..schemas import codec, export, keys
 from ..schemas.keys import Topic
-from ..schemas.messages import Message
+from ..schemas.messages import Command, Message
 
 
 def config_names(**_: object) -> list[str]:
@@ -105,7 +105,11 @@ def describe(raw: RawSample) -> Any:
     topic = keys.topic_of(raw.key)
     if topic is not None and topic.kind != "query":
         msg = codec.decode(raw.payload, raw.encoding, topic.type, raw.key)
-        return printable(msgspec.to_builtins(msg, builtin_types=(bytes,)))
+        data = msgspec.to_builtins(msg, builtin_types=(bytes,))
+        if isinstance(msg, Command) and not (msg.sender or msg.seq or msg.stamp):
+            for field in ("sender", "seq", "stamp"):  # not numbered: shown as it was sent
+                del data[field]
+        return printable(data)
     return printable(codec.to_builtins(raw.payload, raw.encoding))
 
 

@@ -19,7 +19,7 @@ from typing import Any
 from aiohttp import web
 
 from icefloe.client import AsyncRobot
-from icefloe.errors import NotReachable
+from icefloe.errors import NotConfirmed, NotReachable
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -58,6 +58,9 @@ async def errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     except NotReachable as exc:
         log.warning("%s: %s", request.rel_url, exc)
         return error(503, f"robot not answering: {exc}")
+    except NotConfirmed as exc:
+        log.warning("%s: %s", request.rel_url, exc)
+        return error(503, f"stop not confirmed: {exc}")
 
 
 class Api:
@@ -139,6 +142,7 @@ class Api:
         return self.state()
 
     async def stop(self, request: web.Request) -> web.Response:
+        """Answers once hwbridge has confirmed the stop: the board runs zero duty."""
         self.demand = [0.0, 0.0]
         await self.robot.stop()
         return self.state()
