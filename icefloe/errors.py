@@ -48,3 +48,11 @@ class GatewareError(IcefloeError):
 
 class NotReachable(IcefloeError):
     """A robot (its Zenoh router or a queryable) did not answer in time."""
+
+
+class BadRecording(IcefloeError):
+    """An MCAP recording cannot be read, or a channel of it cannot be replayed.
+
+    The message names the file and, where it is about one, the channel's topic, e.g.
+    ``run.mcap: not an MCAP file (it starts with b'PK\\x03\\x04')``.
+    """
