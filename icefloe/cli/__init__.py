@@ -3,8 +3,9 @@
     robot.py     up, router, credentials, config     run and set up a robot
     bus.py       status, topics, echo, hz, pub, query  look at and talk to the bus
     schemas.py   schemas                             the JSON Schemas of the messages
-    viz.py       viz                                 the Rerun view of robots
+    viz.py       viz                                 the Rerun view of robots (live, or from a recording)
     gateware.py  gateware build, pins                the icoBoard's FPGA design
+    record.py    record, replay, bag, export         recordings: MCAP files, played back onto the bus
 
 A verb module has a ``register(verbs)`` function that adds its sub-parsers, each with
 ``set_defaults(run=<function of the parsed args returning an exit status>)``. To add a verb
@@ -20,7 +21,7 @@ from collections.abc import Sequence
 
 from ..errors import IcefloeError
 
-VERB_MODULES = ("robot", "bus", "schemas", "viz", "gateware")
+VERB_MODULES = ("robot", "bus", "record", "schemas", "viz", "gateware")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\

@@ -24,12 +24,13 @@ def add_config_argument(parser: argparse.ArgumentParser, *, positional: bool = F
         parser.add_argument("--config", help=help_)
 
 
-def add_bus_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+def add_bus_arguments(parser: argparse.ArgumentParser,
+                      robot_help: str = "robot name on the bus (default: the config's)") -> argparse.ArgumentParser:
     """The options of every verb that opens a session: which robot, where, as whom."""
     add_config_argument(parser)
     parser.add_argument("--connect", action="append", metavar="ENDPOINT",
                         help="Zenoh endpoint of the robot's router, e.g. tcp/10.0.0.5:7447 (repeatable)")
-    parser.add_argument("--robot", help="robot name on the bus (default: the config's)")
+    parser.add_argument("--robot", help=robot_help)
     parser.add_argument("--credentials", metavar="FILE",
                         help="a robot's credentials file (robot, user, password, address): drive it as its owner")
     return parser
