@@ -1,4 +1,4 @@
-"""The `viz` verb: a live Rerun view of the robots on a bus (services/viz)."""
+"""The `viz` verb: a live Rerun view of the robots on a bus (services/viz), or of a recording."""
 
 from __future__ import annotations
 
@@ -14,6 +14,12 @@ def viz(args: argparse.Namespace) -> int:
         import rerun  # noqa: F401
     except ImportError as exc:
         raise IcefloeError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
+    if args.files:
+        from ..runtime import load_config
+        from ..services.viz.options import options_from
+        from ..services.viz.playback import show_files
+
+        return show_files(args.files, load_config(args), options_from(args))
     from ..services.viz.__main__ import start
 
     start(args)
@@ -21,7 +27,11 @@ def viz(args: argparse.Namespace) -> int:
 
 
 def register(verbs: argparse._SubParsersAction) -> None:
-    p = verbs.add_parser("viz", help="a live Rerun view of the robots on a bus (needs the viz extra)",
-                         description=VIZ_DOC, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = verbs.add_parser("viz", help="a Rerun view of the robots on a bus, or of a recording (needs the viz extra)",
+                         description=VIZ_DOC + "    icefloe viz run.mcap                                    "
+                         "# a recording (icefloe record), with the time slider\n",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("files", nargs="*", metavar="FILE.mcap",
+                   help="show this recording instead of the live bus (several: a split one, in order)")
     add_service_arguments(p)
     p.set_defaults(run=viz)
