@@ -30,8 +30,9 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, Proc, Robot, wait_for
+from conftest import ROOT, wait_for
 from mcap.reader import make_reader
+from test_bag_cli import cli
 
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
@@ -45,14 +46,6 @@ ROBOT = ("[sim]\nseed = 5\nslip = 0.05\nencoder_noise = 0.02\n\n"
 """The simulated robot (slip, so the localizer has work to do) and a localizer that starts at the truth."""
 LEGS = [(0.2, 0.0, 2.0), (0.0, 1.5, math.pi / 3), (0.15, 0.6, 2.5), (0.0, -1.5, math.pi / 3), (0.2, 0.0, 2.0)]
 """(v m/s, w rad/s, s): 10 s of driving, straight, turning on the spot and on an arc."""
-
-
-def cli(robot: Robot, *args: str, name: str) -> Proc:
-    """``icefloe <args> --config <robot>`` as a process, stopped at the end of the test."""
-    proc = Proc(name, [sys.executable, "-m", "icefloe.cli", *args, "--config", str(robot.config_path)],
-                robot.tmp / f"{name}.log", robot.env)
-    robot.procs.append(proc)
-    return proc
 
 
 async def drive(node) -> None:

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import contextlib
 import datetime
+import logging
 import os
 import re
 import signal
@@ -83,8 +84,14 @@ async def until_signal(work: Awaitable[int]) -> int:
             loop.remove_signal_handler(sig)
 
 
+def warnings_to_stderr() -> None:
+    """Warnings of the bag library and the session (a truncated file, a channel not replayed) on stderr."""
+    logging.basicConfig(stream=sys.stderr, level=logging.WARNING, format="%(message)s")
+
+
 def on_bus(verb: Callable[[argparse.Namespace, RobotConfig], Awaitable[int]]) -> Callable[[argparse.Namespace], int]:
     def run(args: argparse.Namespace) -> int:
+        warnings_to_stderr()
         return run_async(until_signal(verb(args, bus_config(args))))
 
     return run
@@ -257,6 +264,7 @@ def export(args: argparse.Namespace) -> int:
 def guarded(verb: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
     """A file verb whose OSErrors (no such file, no space) are reported like the others."""
     def run(args: argparse.Namespace) -> int:
+        warnings_to_stderr()
         try:
             return verb(args)
         except OSError as exc:
