@@ -204,3 +204,30 @@ async def test_bag_info_export_and_viz_read_a_recording(tmp_path: Path) -> None:
     assert len(shown["/robots/sim/camera/image"]["stamp"]) == 4 and shown["/robots/sim/oled"]["stamp"]
     status, _, err = await icefloe("bag", "info", str(tmp_path / "demo.rrd"))
     assert status == 2 and "demo.rrd: not an MCAP file" in err
+
+
+def docs_snippet(doc: Path, after: str) -> str:
+    """The first ```python block after the line containing ``after`` in a doc."""
+    text = doc.read_text()
+    block = re.search(r"```python\n(.*?)```", text[text.index(after):], re.S)
+    assert block, f"no python block after {after!r} in {doc}"
+    return block.group(1)
+
+
+async def test_the_students_snippet_reads_a_recording(tmp_path: Path) -> None:
+    """The snippet of docs/record-replay.md, as written, on a recording of the demo robot "sim"."""
+    sent = demo_messages(2.0)
+    writer = BagWriter(tmp_path / "run.mcap")
+    for key, msg, received in sent:
+        writer.write(key, codec.encode(msg), codec.MSGPACK, received)
+    writer.write("icefloe/sim/odom/pose", b"\xc1 not a pose", codec.MSGPACK, received + 1)  # a raw channel
+    writer.close()
+    snippet = docs_snippet(ROOT / "docs" / "record-replay.md", "read the file directly")
+    (tmp_path / "homework.py").write_text(snippet)
+    proc = await asyncio.create_subprocess_exec(sys.executable, "homework.py", cwd=tmp_path,
+                                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    out = (await asyncio.wait_for(proc.communicate(), 60))[0].decode()
+    assert proc.returncode == 0, out
+    poses = sum(1 for key, _, _ in sent if key.endswith("odom/pose"))
+    sightings = sum(len(msg.landmarks) for key, msg, _ in sent if key.endswith("camera/landmarks"))
+    assert out.strip() == f"{poses} poses, {sightings} landmark sightings" and sightings > 0
