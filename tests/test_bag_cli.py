@@ -180,6 +180,22 @@ async def test_record_only_the_keys_asked_for_for_the_time_asked(robot: Robot) -
         keys.key(robot.name, t) for t in (keys.ODOM_POSE, keys.WHEELS, keys.LOOP)}
 
 
+async def test_a_full_disk_or_a_bad_key_is_one_clear_line(robot: Robot) -> None:
+    recorder = cli(robot, "record", "-o", "/dev/full", name="record")  # every write: ENOSPC
+    async with robot.node("tester") as node:
+        await wait_for(lambda: "recording" in recorder.output, timeout=30)
+        demo = DemoRobot(robot.config, ())
+        publishing = asyncio.create_task(publish(node, demo, duration=20.0))
+        await asyncio.to_thread(recorder.popen.wait, 20)
+        publishing.cancel()
+        await asyncio.gather(publishing, return_exceptions=True)
+    assert recorder.popen.returncode == 2, recorder.output
+    assert "icefloe: /dev/full: cannot write: No space left on device" in recorder.output
+    assert "Traceback" not in recorder.output
+    status, _, err = await icefloe("record", "icefloe/sim//pose", "--duration", "1", "--config", str(robot.config_path))
+    assert status == 2 and err.startswith("icefloe: bad key expression") and "Traceback" not in err
+
+
 async def test_bag_info_export_and_viz_read_a_recording(tmp_path: Path) -> None:
     recording = tmp_path / "demo.mcap"
     sent = demo_messages(2.0)

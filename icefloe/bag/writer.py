@@ -12,6 +12,7 @@ recording into numbered files (``run_000.mcap``, ``run_001.mcap``, ...), each a 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from collections.abc import Callable
@@ -125,8 +126,12 @@ class BagWriter:
         self.files.append(path)
 
     def _finish(self) -> None:
-        assert self._writer is not None and self._stream is not None
-        self._writer.finish()
-        self._closed_bytes += self._stream.tell()
-        self._stream.close()
-        self._writer = self._stream = None
+        writer, stream = self._writer, self._stream
+        assert writer is not None and stream is not None
+        self._writer = self._stream = None  # closed, even if the disk refuses the summary
+        try:
+            writer.finish()
+            self._closed_bytes += stream.tell()
+        finally:
+            with contextlib.suppress(OSError):
+                stream.close()

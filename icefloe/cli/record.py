@@ -15,7 +15,7 @@ import sys
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import zenoh
 
@@ -124,6 +124,60 @@ def default_output(robot: str) -> Path:
     return Path(f"{robot}-{datetime.datetime.now():%Y%m%d-%H%M%S}.mcap")
 
 
+class Recorder:
+    """``icefloe record``'s work: samples from the subscriptions into the writer, and the live line."""
+
+    def __init__(self, writer: BagWriter, keys_filter: KeyFilter) -> None:
+        self.writer = writer
+        self.keys_filter = keys_filter
+        self.subs: list[Any] = []
+        self.status = Status()
+        self.start = time.monotonic()
+        self._wall0, self._mono0 = time.time_ns(), time.monotonic()
+
+    @property
+    def dropped(self) -> int:
+        return sum(s.skipped for s in self.subs)
+
+    def line(self, verb: str = "recording") -> str:
+        elapsed = time.monotonic() - self.start
+        rate = self.writer.messages / elapsed if elapsed > 0 else 0.0
+        lost = f", {self.dropped} dropped" if self.dropped else ""
+        return (f"{verb} {self.writer.files[-1]}: {elapsed:6.1f} s  {self.writer.messages} messages  "
+                f"{megabytes(self.writer.size)}  {rate:.0f} msg/s{lost}")
+
+    async def take(self, index: int, sub: Any) -> None:
+        async for raw in sub:
+            if self.keys_filter.owner(raw.key) == index:
+                log_time = self._wall0 + int((raw.received - self._mono0) * 1e9)  # receive time, ns
+                self.writer.write(raw.key, raw.payload, raw.encoding, log_time)
+
+    async def show(self) -> None:
+        while True:
+            await asyncio.sleep(0.5)
+            self.writer.flush_if_due()  # a quiet bus still gets its chunks closed
+            self.status.show(self.line())
+
+    async def run(self, duration: float | None) -> None:
+        """Until ``duration`` is up or cancelled; IcefloeError when the file cannot be written."""
+        try:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(duration), asyncio.TaskGroup() as tasks:
+                    tasks.create_task(self.show())
+                    for i, sub in enumerate(self.subs):
+                        tasks.create_task(self.take(i, sub))
+        except* OSError as group:  # the disk is full or gone: say so, keep what was written
+            exc = group.exceptions[0]
+            raise IcefloeError(f"{self.writer.files[-1]}: cannot write: {getattr(exc, 'strerror', '') or exc}; "
+                               "the file holds what was written before") from None
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):  # after a write error: nothing more to save
+            self.writer.close({"messages": str(self.writer.messages), "dropped": str(self.dropped),
+                               "duration_s": f"{time.monotonic() - self.start:.3f}"})
+        self.status.show(self.line("recorded"), final=True)
+
+
 async def record(args: argparse.Namespace, config: RobotConfig) -> int:
     robot = args.robot or config.name
     patterns = [resolve_key(k, robot) for k in args.keys] or [f"{keys.PREFIX}/{robot}/**"]
@@ -138,55 +192,19 @@ async def record(args: argparse.Namespace, config: RobotConfig) -> int:
     meta = {"robot": robot, "keys": " ".join(patterns), "exclude": " ".join(excludes),
             "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
             "host": socket.gethostname(), "command": " ".join(["icefloe", *sys.argv[1:]])}
-    try:
-        writer = BagWriter(output, compression=args.compression, max_size=args.max_size, metadata=meta)
-    except OSError as exc:
-        raise IcefloeError(f"{output}: cannot write: {exc.strerror or exc}") from None
-    status = Status()
-    wall0, mono0 = time.time_ns(), time.monotonic()
-    start = time.monotonic()
-    dropped = 0
-    subs = []
-
-    def line() -> str:
-        elapsed = time.monotonic() - start
-        rate = writer.messages / elapsed if elapsed > 0 else 0.0
-        lost = f", {dropped} dropped" if dropped else ""
-        return (f"recording {writer.files[-1]}: {elapsed:6.1f} s  {writer.messages} messages  "
-                f"{megabytes(writer.size)}  {rate:.0f} msg/s{lost}")
-
-    async def take(index: int, sub) -> None:
-        async for raw in sub:
-            if keys_filter.owner(raw.key) != index:
-                continue
-            try:
-                writer.write(raw.key, raw.payload, raw.encoding, wall0 + int((raw.received - mono0) * 1e9))
-            except OSError as exc:
-                raise IcefloeError(f"{writer.files[-1]}: cannot write: {exc.strerror or exc}") from None
-
-    async def show() -> None:
-        nonlocal dropped
-        while True:
-            await asyncio.sleep(0.5)
-            writer.flush_if_due()
-            dropped = sum(s.skipped for s in subs)
-            status.show(line())
-
-    try:
-        async with Node("record", config, announce=False, retry=False) as node:
-            subs = [node.subscribe_raw(p, maxsize=RECORD_QUEUE) for p in patterns]
+    async with Node("record", config, announce=False, retry=False) as node:
+        try:
+            writer = BagWriter(output, compression=args.compression, max_size=args.max_size, metadata=meta)
+        except OSError as exc:
+            raise IcefloeError(f"{output}: cannot write: {exc.strerror or exc}") from None
+        recorder = Recorder(writer, keys_filter)
+        try:
+            recorder.subs = [node.subscribe_raw(p, maxsize=RECORD_QUEUE) for p in patterns]
             print(f"recording {', '.join(patterns)}" + (f" but {', '.join(excludes)}" if excludes else "") +
                   f" to {output} (Ctrl-C to stop)", file=sys.stderr, flush=True)
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(args.duration), asyncio.TaskGroup() as tasks:
-                    tasks.create_task(show())
-                    for i, sub in enumerate(subs):
-                        tasks.create_task(take(i, sub))
-    finally:
-        dropped = sum(s.skipped for s in subs)
-        writer.close({"messages": str(writer.messages), "dropped": str(dropped),
-                      "duration_s": f"{time.monotonic() - start:.3f}"})
-        status.show(line().replace("recording", "recorded", 1), final=True)
+            await recorder.run(args.duration)
+        finally:
+            recorder.close()
     return 0
 
 
