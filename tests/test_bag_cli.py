@@ -11,7 +11,6 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 from conftest import ROOT, Proc, Robot, wait_for
@@ -50,24 +49,26 @@ async def collect(sub, into: list) -> None:
 async def test_a_recorder_killed_with_sigkill_leaves_a_file_read_to_its_last_whole_chunk(robot: Robot) -> None:
     out = robot.tmp / "killed.mcap"
     recorder = cli(robot, "record", "-o", str(out), name="record")
-    sent: list[tuple[float, m.Message]] = []
+    sent: list[m.Message] = []
     async with robot.node("tester") as node:
         await wait_for(lambda: "recording" in recorder.output, timeout=30)
         await asyncio.sleep(0.5)
         demo = DemoRobot(robot.config, load_world(robot.config.localizer.world).markers)
-        await publish(node, demo, duration=4.0, sent=lambda _, msg: sent.append((time.monotonic(), msg)))
-        killed = time.monotonic()
+        publishing = asyncio.create_task(publish(node, demo, duration=60.0, sent=lambda _, msg: sent.append(msg)))
+        # Mid-run: once a few chunks are on disk (the file, read while written, is a truncated one).
+        await wait_for(lambda: len(list(Bag([out]).entries())) > 300, timeout=40, interval=0.5)
+        written = len(list(Bag([out]).entries()))
         recorder.signal(signal.SIGKILL)
         recorder.popen.wait(10)
+        publishing.cancel()
+        await asyncio.gather(publishing, return_exceptions=True)
     status, info, warning = await icefloe("bag", "info", str(out))
     assert status == 0, warning
     assert len(warning.strip().splitlines()) == 1 and "killed.mcap: truncated" in warning
     assert ", truncated)" in info and f"icefloe/{robot.name}/odom/pose" in info
-    # A chunk is closed about every second: what was sent 2 s before the kill is in the file.
     entries = list(Bag([out]).entries())
-    early = [msg for t, msg in sent if t < killed - 2.0]
-    assert len(entries) >= len(early) > 500
-    stamps = {getattr(msg, "stamp", None) for _, msg in sent}
+    assert len(entries) >= written  # every chunk written before the kill
+    stamps = {getattr(msg, "stamp", None) for msg in sent}
     assert all(e.publish_time in stamps for e in entries if e.channel.type is not m.OledFrame)
     # ... and it replays.
     status, _, err = await icefloe("replay", str(out), "--rate", "10", "--robot", f"{robot.name}x",
@@ -183,10 +184,9 @@ async def test_record_only_the_keys_asked_for_for_the_time_asked(robot: Robot) -
 async def test_a_full_disk_or_a_bad_key_is_one_clear_line(robot: Robot) -> None:
     recorder = cli(robot, "record", "-o", "/dev/full", name="record")  # every write: ENOSPC
     async with robot.node("tester") as node:
-        await wait_for(lambda: "recording" in recorder.output, timeout=30)
         demo = DemoRobot(robot.config, ())
-        publishing = asyncio.create_task(publish(node, demo, duration=20.0))
-        await asyncio.to_thread(recorder.popen.wait, 20)
+        publishing = asyncio.create_task(publish(node, demo, duration=40.0))
+        await asyncio.to_thread(recorder.popen.wait, 40)
         publishing.cancel()
         await asyncio.gather(publishing, return_exceptions=True)
     assert recorder.popen.returncode == 2, recorder.output

@@ -121,6 +121,7 @@ class BagWriter:
         self._writer = Writer(self._stream, chunk_size=CHUNK_SIZE, compression=self.compression)
         self._writer.start(profile="", library=library())
         self._writer.add_metadata("icefloe", {**self.metadata, "part": str(len(self.files))})
+        self._stream.flush()  # a file killed in its first second is still an (empty) MCAP file
         self._schemas.clear()
         self._channels.clear()
         self.files.append(path)
