@@ -74,9 +74,12 @@ def read_file(path: Path) -> tuple[dict, dict, list]:
     return schemas, channels, messages
 
 
-def last_per_stamp(poses: list) -> dict[int, object]:
-    """The last pose published for each stamp (the localizer publishes again after each frame)."""
-    return {p.stamp: p for p in poses}
+def by_stamp(poses: list) -> dict[int, list]:
+    """Every pose published for each stamp (the localizer publishes again after each frame)."""
+    out: dict[int, list] = defaultdict(list)
+    for pose in poses:
+        out[pose.stamp].append(pose)
+    return out
 
 
 def differences(replayed: list, recorded: list) -> list[tuple[float, float]]:
@@ -85,11 +88,17 @@ def differences(replayed: list, recorded: list) -> list[tuple[float, float]]:
     Both services stamp a pose with the last wheel sample it covers; which samples end a 20 ms
     batch depends on when they arrive, so about half the stamps are common to both runs. Between
     them, interpolating would add the counts' quantisation (half a millimetre a tick): compare
-    only where both runs computed a pose for the same sample.
+    only where both runs computed a pose for the same sample. The localizer publishes again after
+    each camera frame, and a frame that came in just before an odometry pose in one run may come
+    just after it in the other: at each stamp, the closest pair of what the two runs published.
     """
-    a, b = last_per_stamp(replayed), last_per_stamp(recorded)
-    return [(math.hypot(a[s].x - b[s].x, a[s].y - b[s].y), abs(wrap_angle(a[s].theta - b[s].theta)))
-            for s in sorted(set(a) & set(b))]
+    a, b = by_stamp(replayed), by_stamp(recorded)
+    out = []
+    for stamp in sorted(set(a) & set(b)):
+        pairs = [(math.hypot(p.x - q.x, p.y - q.y), abs(wrap_angle(p.theta - q.theta))) for p in a[stamp]
+                 for q in b[stamp]]
+        out.append(min(pairs))
+    return out
 
 
 async def test_record_the_driven_robot_and_replay_it_into_fresh_services(make_robot) -> None:
@@ -151,7 +160,7 @@ async def test_record_the_driven_robot_and_replay_it_into_fresh_services(make_ro
         print(f"{key:<36}{recorded[key]:>7}{spied[key]:>7}")
     for key, n in spied.items():
         assert abs(recorded[key] - n) <= max(2, 0.05 * n), (key, recorded[key], n)
-    assert spied[keys.key(robot.name, keys.WHEELS)] > 500
+    assert spied[keys.key(robot.name, keys.WHEELS)] > 300  # 100 Hz; fewer on a loaded machine
 
     # Stamps: each key's publish times (its messages' stamps) never go back; log times are receive times.
     by_topic = defaultdict(list)
@@ -207,7 +216,7 @@ async def test_record_the_driven_robot_and_replay_it_into_fresh_services(make_ro
     assert max(p for p, _ in odom_diff) < 0.001
     assert len(loc_diff) > 50
     assert max(p for p, _ in loc_diff) < 0.01
-    assert math.dist((rec_loc[-1].x, rec_loc[-1].y), (loc[-1].x, loc[-1].y)) < 0.01
+    assert math.dist((rec_loc[-1].x, rec_loc[-1].y), (loc[-1].x, loc[-1].y)) < 0.001  # at rest, every frame in
 
 
 def msgspec_decode(type_, data: bytes):
