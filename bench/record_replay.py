@@ -1,7 +1,7 @@
 """Benchmark: recording and replaying the whole simulated robot.
 
-    .venv/bin/python bench/record_replay.py                  # 4 windows of 30 s
-    .venv/bin/python bench/record_replay.py --seconds 60
+    .venv/bin/python bench/record_replay.py                  # 2 rounds of 3 windows of 30 s, and one more
+    .venv/bin/python bench/record_replay.py --seconds 60 --rounds 3
 
 What runs (all real processes): `icefloe up --no-viz` on the default simulated robot (router,
 info, sim, hwbridge, odometry, localizer, camera, power, oled, webapi: every key at its default
@@ -18,7 +18,8 @@ What it prints:
 * recording size per minute of each recorder, next to the bytes the same keys put on the bus
   (MessagePack, uncompressed) in the same window, and each recorder's CPU;
 * hwbridge's cycle wake-up percentiles (its own histogram, from shared memory) in each window:
-  windows 1 and 4 are the reference for 2 and 3;
+  the windows without a recorder are the reference; each window, then each condition's windows
+  together;
 * replay of the full recording at ``--rate 10`` under another robot name into a raw subscriber
   that counts every message: duration, throughput, messages lost (per key if any); next to it, the
   rate at which the same file is read and turned back into bus payloads with no bus at all.
@@ -74,17 +75,28 @@ class Spy:
         return counts, size
 
 
-def hist_window(shared, seconds: float, during=None) -> dict[str, float]:
-    """hwbridge's wake-up percentiles (µs) over ``seconds``, from its shared-memory histogram."""
+def figures(hist: list[int], cycles: int, overruns: int) -> dict:
+    """Wake-up percentiles (µs) of a latency histogram (hwbridge's bins)."""
     from icefloe.services.hwbridge.control import percentiles
 
+    p50, p99, p999, pmax = percentiles(hist, (0.5, 0.99, 0.999, 1.0))
+    return {"p50": p50 * 1e6, "p99": p99 * 1e6, "p99.9": p999 * 1e6, "max": pmax * 1e6,
+            "cycles": cycles, "overruns": overruns, "hist": hist}
+
+
+def hist_window(shared, seconds: float) -> dict:
+    """hwbridge's wake-up figures over ``seconds``, from its shared-memory histogram."""
     state0, hist0 = shared.read_state(), list(shared.hist)
     time.sleep(seconds)
     state1, hist1 = shared.read_state(), list(shared.hist)
-    delta = [b - a for a, b in zip(hist0, hist1, strict=True)]
-    p50, p99, p999, pmax = percentiles(delta, (0.5, 0.99, 0.999, 1.0))
-    return {"p50": p50 * 1e6, "p99": p99 * 1e6, "p99.9": p999 * 1e6, "max": pmax * 1e6,
-            "cycles": state1["cycles"] - state0["cycles"], "overruns": state1["overruns"] - state0["overruns"]}
+    return figures([b - a for a, b in zip(hist0, hist1, strict=True)], state1["cycles"] - state0["cycles"],
+                   state1["overruns"] - state0["overruns"])
+
+
+def combined(windows: list[dict]) -> dict:
+    """The figures of several windows taken together (their histograms added)."""
+    hist = [sum(counts) for counts in zip(*(w["hist"] for w in windows), strict=True)]
+    return figures(hist, sum(w["cycles"] for w in windows), sum(w["overruns"] for w in windows))
 
 
 def record_window(config: Path, out: Path, shared, spy: Spy, seconds: float, *extra: str) -> dict:
@@ -101,7 +113,7 @@ def record_window(config: Path, out: Path, shared, spy: Spy, seconds: float, *ex
     cpu = (cpu_seconds(recorder.pid) - cpu0) / (time.monotonic() - t0)
     counts, size = spy.take()
     recorder.send_signal(signal.SIGINT)
-    err = first + recorder.communicate(timeout=30)[1]
+    err = first + recorder.communicate(timeout=180)[1]  # niced on a busy machine, it may take a while
     assert recorder.returncode == 0, err
     return {**figures, "cpu": cpu, "file": out, "bus_counts": counts, "bus_bytes": size, "log": err.strip()}
 
@@ -221,54 +233,64 @@ async def main_async(args: argparse.Namespace) -> None:
         driver = drive(config, stop)
         await asyncio.sleep(3.0)
         loop = asyncio.get_running_loop()
-        windows = {}
-        spy.take()
-        windows["no recorder"] = await loop.run_in_executor(None, hist_window, shared, args.seconds)
-        windows["recording all"] = await loop.run_in_executor(
-            None, record_window, config, tmp / "all.mcap", shared, spy, args.seconds)
-        windows["recording, no images"] = await loop.run_in_executor(
-            None, record_window, config, tmp / "noimages.mcap", shared, spy, args.seconds,
-            "--exclude", "camera/image")
-        windows["no recorder again"] = await loop.run_in_executor(None, hist_window, shared, args.seconds)
+        windows: list[tuple[str, dict]] = []  # (condition, figures), in the order measured
+        for r in range(args.rounds):  # the conditions in turn, so a change in the machine's load hits all
+            windows.append(("no recorder", await loop.run_in_executor(None, hist_window, shared, args.seconds)))
+            windows.append(("recording all", await loop.run_in_executor(
+                None, record_window, config, tmp / f"all{r}.mcap", shared, spy, args.seconds)))
+            windows.append(("recording, no images", await loop.run_in_executor(
+                None, record_window, config, tmp / f"noimages{r}.mcap", shared, spy, args.seconds,
+                "--exclude", "camera/image")))
+        windows.append(("no recorder", await loop.run_in_executor(None, hist_window, shared, args.seconds)))
         shared.close()
         stop.set()
         await driver
-        replayed = await replay_window(config, tmp / "all.mcap", f"{name}r", args.rate)
+        replayed = await replay_window(config, tmp / "all0.mcap", f"{name}r", args.rate)
         session.close()
     finally:
         stop.set()
         up.send_signal(signal.SIGINT)
         with contextlib.suppress(subprocess.TimeoutExpired):
             up.wait(30)
-    reference = await asyncio.to_thread(transcode_rate, tmp / "all.mcap")
+    reference = await asyncio.to_thread(transcode_rate, tmp / "all0.mcap")
     report(args, tmp, windows, replayed, reference)
 
 
-def report(args: argparse.Namespace, tmp: Path, windows: dict, replayed: dict, reference: float) -> None:
+def report(args: argparse.Namespace, tmp: Path, windows: list[tuple[str, dict]], replayed: dict,
+           reference: float) -> None:
     from icefloe.bag import Bag
 
     load = os.getloadavg()[0]
-    print(f"record/replay bench: the whole simulated robot (icefloe up), driven; {args.seconds:.0f} s windows; "
-          f"{os.cpu_count()} CPUs, load average {load:.2f}; files in {tmp}")
+    print(f"record/replay bench: the whole simulated robot (icefloe up), driven; {args.rounds} rounds of "
+          f"{args.seconds:.0f} s windows; {os.cpu_count()} CPUs, load average {load:.2f}; files in {tmp}")
     print("\nrecording size (zstd chunks, JSON messages), next to what the same keys put on the bus "
-          "(MessagePack) in the same window:")
-    for label, key in (("every key", "recording all"), ("without camera/image", "recording, no images")):
-        w = windows[key]
+          "(MessagePack) in the same window; each window:")
+    for condition, w in windows:
+        if "file" not in w:
+            continue
         size, seconds = w["file"].stat().st_size, duration_s(w["file"])
         kept = Counter(e.channel.key for e in Bag([w["file"]]).entries())
         bus = sum(n for k, n in w["bus_bytes"].items() if k in kept)
-        print(f"  {label:22} {megabytes_per_minute(size, seconds):6.2f} MB/min   bus "
-              f"{megabytes_per_minute(bus, args.seconds):6.2f} MB/min   {sum(kept.values()) / seconds:6.0f} msg/s "
+        print(f"  {condition:22} {megabytes_per_minute(size, seconds):6.2f} MB/min   bus "
+              f"{megabytes_per_minute(bus, args.seconds):6.2f} MB/min   {sum(kept.values()) / seconds:5.0f} msg/s "
               f"on {len(kept)} keys ({seconds:.0f} s file);  recorder CPU {w['cpu'] * 100:4.1f} % of a core")
-    print("\nhwbridge cycle wake-up (µs), each window in turn:")
+        print(f"    {w['log'].splitlines()[-1]}")
+    print("\nhwbridge cycle wake-up (µs), each window in turn, then each condition's windows together:")
     print(f"  {'':24}{'p50':>7}{'p99':>7}{'p99.9':>7}{'max':>7}   cycles  overruns")
-    for label, w in windows.items():
+
+    def row(label: str, w: dict) -> None:
         print(f"  {label:24}{w['p50']:7.0f}{w['p99']:7.0f}{w['p99.9']:7.0f}{w['max']:7.0f}   "
               f"{w['cycles']:6d}  {w['overruns']:8d}")
+
+    for condition, w in windows:
+        row(condition, w)
+    print("  " + "-" * 60)
+    for condition in dict.fromkeys(c for c, _ in windows):
+        row(condition, combined([w for c, w in windows if c == condition]))
     r = replayed
     lost = {k: n - r["received"][k] for k, n in r["in_file"].items() if r["received"][k] != n}
     sent = sum(r["in_file"].values())
-    print(f"\nreplay of the full recording at --rate {args.rate:g}: {r['duration']:.1f} s of recording, {sent} "
+    print(f"\nreplay of the first full recording at --rate {args.rate:g}: {r['duration']:.1f} s of recording, {sent} "
           f"messages, received over {r['span']:.2f} s ({sent / r['span']:.0f} msg/s; "
           f"{r['wall']:.1f} s with the process's start); lost: {sum(lost.values())}"
           + (f" {dict(lost)}" if lost else ""))
@@ -279,6 +301,7 @@ def report(args: argparse.Namespace, tmp: Path, windows: dict, replayed: dict, r
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=30.0, help="length of each window (default 30)")
+    p.add_argument("--rounds", type=int, default=2, help="times the three conditions are taken in turn (default 2)")
     p.add_argument("--rate", type=float, default=10.0, help="replay speed (default 10)")
     asyncio.run(main_async(p.parse_args()))
 

@@ -37,6 +37,9 @@ from .reader import Bag
 START_DELAY_S = 0.3
 """Between declaring the publishers and the first message: time for the router to match them
 with the subscribers, so the first messages are not sent to nobody."""
+END_DELAY_S = 0.5
+"""After the last message, before the session closes: Zenoh sends what is still queued (closing
+the session drops it; large samples, camera images, are the last to go)."""
 
 
 @dataclass(frozen=True)
@@ -177,6 +180,7 @@ async def replay(node: Node, bag: Bag, options: ReplayOptions,
             for task in helpers:  # the clock and the report end with the replay
                 task.cancel()
             await asyncio.gather(*helpers, return_exceptions=True)
+        await asyncio.sleep(END_DELAY_S)
     finally:
         publishers.close()
         for token in tokens:
