@@ -32,7 +32,8 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, wait_for
 from mcap.reader import make_reader
-from test_bag_cli import cli
+from test_bag_cli import cli, collect
+from test_localizer_sim import drive_legs
 
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
@@ -46,21 +47,6 @@ ROBOT = ("[sim]\nseed = 5\nslip = 0.05\nencoder_noise = 0.02\n\n"
 """The simulated robot (slip, so the localizer has work to do) and a localizer that starts at the truth."""
 LEGS = [(0.2, 0.0, 2.0), (0.0, 1.5, math.pi / 3), (0.15, 0.6, 2.5), (0.0, -1.5, math.pi / 3), (0.2, 0.0, 2.0)]
 """(v m/s, w rad/s, s): 10 s of driving, straight, turning on the spot and on an arc."""
-
-
-async def drive(node) -> None:
-    twist = node.publisher(keys.TWIST)
-    for v, w, seconds in LEGS:
-        for _ in range(round(seconds / 0.05)):
-            twist.put(m.Twist(v=v, w=w))
-            await asyncio.sleep(0.05)
-    node.publisher(keys.STOP).put(m.Stop())
-    await asyncio.sleep(1.0)
-
-
-async def collect(sub, into: list) -> None:
-    async for item in sub:
-        into.append(item)
 
 
 def read_file(path: Path) -> tuple[dict, dict, list]:
@@ -123,7 +109,7 @@ async def test_record_the_driven_robot_and_replay_it_into_fresh_services(make_ro
         frame_task = asyncio.create_task(collect(node.subscribe(keys.LANDMARKS, latest=False), frames))
         await wait_for(lambda: len(frames) > 5, timeout=40)
         window = (time.time_ns(), 0)
-        await drive(node)
+        await drive_legs(node, LEGS)
         window = (window[0], time.time_ns())
         assert recorder.stop(signal.SIGINT) == 0, recorder.output
         await asyncio.sleep(0.5)  # the spy has seen everything the recorder saw, and more
