@@ -23,7 +23,7 @@ from icefloe import config as config_mod
 from icefloe.bag import Bag, BagWriter, channels
 from icefloe.bag.export import to_csv
 from icefloe.errors import BadRecording
-from icefloe.schemas import codec, keys
+from icefloe.schemas import codec, export, keys
 from icefloe.schemas import messages as m
 from icefloe.services.viz.demo import RATES_HZ, DemoRobot
 from icefloe.worldmap import load_world
@@ -60,6 +60,28 @@ def write(path: Path, messages, **options) -> BagWriter:
     return writer
 
 
+def foxglove_reads(schema: dict, where: str = "") -> None:
+    """What Foxglove's JSON Schema reader (@foxglove/mcap-support parseJsonSchema) accepts, or AssertionError:
+    an object with properties; each property of type boolean, number, integer, string (contentEncoding only
+    base64), object (the same again), or array of one of those (no contentEncoding on strings)."""
+    assert schema.get("type") == "object", f"{where}: not an object"
+    for name, field in schema["properties"].items():
+        at = f"{where}.{name}"
+        kind = field.get("type")
+        if kind == "object":
+            foxglove_reads(field, at)
+        elif kind == "array":
+            items = field["items"]
+            if items.get("type") == "object":
+                foxglove_reads(items, at)
+            else:
+                assert items.get("type") in ("boolean", "number", "integer", "string"), f"{at}: items {items}"
+                assert "contentEncoding" not in items, at
+        else:
+            assert kind in ("boolean", "number", "integer", "string"), f"{at}: type {kind!r}"
+            assert field.get("contentEncoding", "base64") == "base64", at
+
+
 def test_a_file_has_one_channel_per_key_with_its_json_schema_and_json_messages(tmp_path: Path) -> None:
     sent = demo_messages()
     write(tmp_path / "run.mcap", sent)
@@ -79,7 +101,8 @@ def test_a_file_has_one_channel_per_key_with_its_json_schema_and_json_messages(t
         assert message.publish_time == getattr(msg, "stamp", received)
         body = json.loads(message.data)
         declared = json.loads(schema.data)
-        assert "$ref" not in schema.data.decode() and set(body) <= set(declared["properties"])
+        foxglove_reads(declared, schema.name)
+        assert set(body) <= set(declared["properties"])
         if isinstance(msg, m.Image):  # Foxglove's image, plus what icefloe needs back
             assert schema.name == "foxglove.CompressedImage" and declared["title"] == "foxglove.CompressedImage"
             assert declared["properties"]["data"]["contentEncoding"] == "base64"
@@ -90,6 +113,12 @@ def test_a_file_has_one_channel_per_key_with_its_json_schema_and_json_messages(t
             assert schema.name == f"icefloe.{type(msg).__name__}"
             assert msgspec.json.decode(message.data, type=type(msg)) == msg
     assert all(not rest for rest in got.values())
+
+
+def test_every_message_schema_and_the_image_schema_are_read_by_foxglove() -> None:
+    for type_ in export.message_types():
+        foxglove_reads(json.loads(channels.message_schema(type_.__name__)), type_.__name__)
+    foxglove_reads(json.loads(channels.image_schema()), "foxglove.CompressedImage")
 
 
 def test_replay_payloads_are_the_bytes_that_were_on_the_bus(tmp_path: Path) -> None:

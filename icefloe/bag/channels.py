@@ -3,7 +3,8 @@
 Recording: one channel per key (and per Zenoh encoding seen on it), in one of three forms.
 
 * ``typed``: a key of the key table whose payload decodes. Schema: the message's JSON Schema
-  (schema encoding ``jsonschema``, name ``icefloe.<Message>``); messages: JSON (message encoding
+  (schema encoding ``jsonschema``, name ``icefloe.<Message>``), self-contained (no ``$ref``) and
+  with a ``type`` on every property, as Foxglove's reader needs; messages: JSON (message encoding
   ``json``), so Foxglove and any JSON reader decode them with no plug-in. msgspec writes
   ``bytes`` fields as base64 strings, as the schema says (``contentEncoding: base64``).
 * ``image``: ``camera/image`` as Foxglove's ``foxglove.CompressedImage`` (timestamp, frame_id,
@@ -98,11 +99,31 @@ def inline_refs(schema: dict[str, Any]) -> dict[str, Any]:
     return resolve(schema)
 
 
+def typed_enums(schema: Any) -> Any:
+    """``schema`` with a ``type`` on every ``enum`` that has none.
+
+    msgspec writes a `Literal` field as a bare ``{"enum": [...]}``; Foxglove's JSON Schema reader
+    needs a ``type`` on every property and refuses the whole channel without one.
+    """
+    if isinstance(schema, dict):
+        out = {k: typed_enums(v) for k, v in schema.items()}
+        values = out.get("enum")
+        if "type" not in out and isinstance(values, list) and values:
+            if all(isinstance(v, str) for v in values):
+                out["type"] = "string"
+            elif all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+                out["type"] = "integer"
+        return out
+    if isinstance(schema, list):
+        return [typed_enums(v) for v in schema]
+    return schema
+
+
 @functools.cache
 def message_schema(type_name: str) -> bytes:
-    """The JSON Schema of an icefloe message (as in schemas/json/, with references inlined)."""
+    """The JSON Schema of an icefloe message (as in schemas/json/, references inlined, enums typed)."""
     schema = json.loads(export.schemas()[f"{type_name}.json"])
-    return json.dumps(inline_refs(schema), sort_keys=True).encode()
+    return json.dumps(typed_enums(inline_refs(schema)), sort_keys=True).encode()
 
 
 @functools.cache
