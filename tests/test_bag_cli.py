@@ -202,9 +202,10 @@ async def test_bag_info_export_and_viz_read_a_recording(tmp_path: Path) -> None:
     writer = BagWriter(recording, metadata={"robot": "sim"})
     for key, msg, received in sent:
         writer.write(key, codec.encode(msg), codec.MSGPACK, received)
-    writer.close()
+    writer.close({"dropped": "3"})  # as a recorder that could not keep up says
     status, info, err = await icefloe("bag", "info", str(recording))
     assert status == 0, err
+    assert f"messages:  {len(sent)} (3 dropped by the recorder)" in info
     assert re.search(r"icefloe/sim/hw/wheels +200 +100.0 Hz +typed +application/msgpack", info), info
     assert "duration:  1.990 s" in info and "image  application/msgpack" in info
     status, out, err = await icefloe("export", str(recording), "--csv", str(tmp_path / "csv"))

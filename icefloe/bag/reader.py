@@ -21,6 +21,7 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.summary import Summary
 
 from ..errors import BadRecording
 from .channels import ChannelPlan, plan
@@ -87,7 +88,7 @@ class Bag:
         seen: dict[ChannelPlan, None] = {}
         for state in self.files:
             with open(state.path, "rb") as f:
-                summary = SeekingReader(f).get_summary() if state.whole else None
+                summary = _summary(state, f) if state.whole else None
                 if summary is not None:
                     for channel in summary.channels.values():
                         seen[self._plan(state.path, summary.schemas.get(channel.schema_id), channel)] = None
@@ -96,19 +97,21 @@ class Bag:
                         seen[self._plan(state.path, schema, channel)] = None
         return list(seen)
 
-    def metadata(self) -> dict[str, dict[str, str]]:
-        """The metadata records of the first file (``icefloe``: who recorded what, when)."""
-        state = self.files[0]
+    def metadata(self, index: int = 0) -> dict[str, dict[str, str]]:
+        """The metadata records of a file (``icefloe``: who recorded what, when, in each file;
+        ``icefloe.end``: messages and drops, in the last file of a recording that was closed)."""
+        state = self.files[index]
         if state.metadata is None:
-            state.metadata = {}
             with open(state.path, "rb") as f:
                 if state.whole:
-                    for record in SeekingReader(f).iter_metadata():
-                        state.metadata[record.name] = dict(record.metadata)
+                    try:
+                        state.metadata = {r.name: dict(r.metadata) for r in SeekingReader(f).iter_metadata()}
+                    except (McapError, ValueError) as exc:
+                        raise BadRecording(f"{state.path}: bad metadata: {exc}") from None
                 else:
-                    for _ in self._records(state, f):
+                    for _ in self._records(state, f):  # sets state.metadata on the way
                         pass
-        return state.metadata
+        return state.metadata or {}
 
     def _plan(self, path: Path, schema: Schema | None, channel: Channel) -> ChannelPlan:
         found = self._plans.get((path, channel.id))
@@ -120,17 +123,13 @@ class Bag:
 
     def _records(self, state: FileState, f: IO[bytes]) -> Iterator[tuple[Schema | None, Channel, McapMessage]]:
         if state.whole:
-            reader = SeekingReader(f, validate_crcs=True)
-            try:
-                summary = reader.get_summary()
-            except McapError as exc:
-                raise BadRecording(f"{state.path}: bad summary section: {exc}") from None
+            summary = _summary(state, f)
             if summary is not None and summary.chunk_indexes:
                 state.chunks = len(summary.chunk_indexes)
                 state.compression = summary.chunk_indexes[0].compression
                 try:
-                    yield from reader.iter_messages(log_time_order=True)
-                except McapError as exc:
+                    yield from SeekingReader(f, validate_crcs=True).iter_messages(log_time_order=True)
+                except (McapError, ValueError) as exc:  # a corrupt chunk (bad CRC, bad compression)
                     raise BadRecording(f"{state.path}: {exc}") from None
                 return
             f.seek(0)
@@ -182,6 +181,14 @@ class Bag:
         cut = f", and skipped {state.size - good} bytes of a chunk cut off" if state.size > good else ""
         log.warning("%s: truncated (no summary: was the recorder killed?): read %d messages from %d whole "
                     "chunks%s (%s)", state.path, messages, chunks, cut, type(exc).__name__)
+
+
+def _summary(state: FileState, f: IO[bytes]) -> Summary | None:
+    """The summary section of a whole file (None if it has none); BadRecording if it is corrupt."""
+    try:
+        return SeekingReader(f).get_summary()
+    except (McapError, ValueError) as exc:
+        raise BadRecording(f"{state.path}: bad summary section: {exc}") from None
 
 
 def _check(path: Path) -> tuple[int, bool]:

@@ -256,9 +256,7 @@ def info(args: argparse.Namespace) -> int:
         start = datetime.datetime.fromtimestamp(first / 1e9).astimezone()
         print(f"start:     {start.isoformat(timespec='milliseconds')}")
     print(f"duration:  {(last - first) / 1e9:.3f} s")
-    end = {}
-    for state in bag.files:
-        end = (state.metadata or {}).get("icefloe.end", end)
+    end = bag.metadata(len(bag.files) - 1).get("icefloe.end", {})
     dropped = f" ({end['dropped']} dropped by the recorder)" if end.get("dropped", "0") != "0" else ""
     print(f"messages:  {total}{dropped}")
     width = max((len(k[0]) for k in counts), default=10)
