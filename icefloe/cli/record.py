@@ -30,6 +30,8 @@ from .common import add_bus_arguments, bus_config, resolve_key
 RECORD_QUEUE = 20_000
 """Samples the recorder holds between its callback and the file; beyond that the oldest are dropped
 (and counted): the recorder's memory stays bounded whatever the disk does."""
+TAKE_BATCH = 64
+"""Samples written between two turns of the event loop when the recorder has a backlog."""
 RECORD_NICE = 10
 """The recorder's niceness: on the robot, everything else runs first (hwbridge is real-time anyway)."""
 
@@ -146,11 +148,27 @@ class Recorder:
         return (f"{verb} {self.writer.files[-1]}: {elapsed:6.1f} s  {self.writer.messages} messages  "
                 f"{megabytes(self.writer.size)}  {rate:.0f} msg/s{lost}")
 
+    def _write(self, index: int, raw: Any) -> None:
+        if self.keys_filter.owner(raw.key) == index:
+            log_time = self._wall0 + int((raw.received - self._mono0) * 1e9)  # receive time, ns
+            self.writer.write(raw.key, raw.payload, raw.encoding, log_time)
+
     async def take(self, index: int, sub: Any) -> None:
+        taken = 0
         async for raw in sub:
-            if self.keys_filter.owner(raw.key) == index:
-                log_time = self._wall0 + int((raw.received - self._mono0) * 1e9)  # receive time, ns
-                self.writer.write(raw.key, raw.payload, raw.encoding, log_time)
+            self._write(index, raw)
+            taken += 1
+            if taken % TAKE_BATCH == 0 and sub.pending():
+                # A subscription with a backlog hands out samples without ever waiting: let Ctrl-C,
+                # --duration and the live line have their turn.
+                await asyncio.sleep(0)
+
+    async def drain(self) -> None:
+        """Stop listening and write what was received before (Ctrl-C, --duration)."""
+        for index, sub in enumerate(self.subs):
+            sub.close()
+            async for raw in sub:  # a closed subscription hands out what it holds, then ends
+                self._write(index, raw)
 
     async def show(self) -> None:
         while True:
@@ -202,7 +220,11 @@ async def record(args: argparse.Namespace, config: RobotConfig) -> int:
             recorder.subs = [node.subscribe_raw(p, maxsize=RECORD_QUEUE) for p in patterns]
             print(f"recording {', '.join(patterns)}" + (f" but {', '.join(excludes)}" if excludes else "") +
                   f" to {output} (Ctrl-C to stop)", file=sys.stderr, flush=True)
-            await recorder.run(args.duration)
+            try:
+                await recorder.run(args.duration)
+            finally:
+                with contextlib.suppress(OSError):  # a full disk was reported already
+                    await recorder.drain()
         finally:
             recorder.close()
     return 0
