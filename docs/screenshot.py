@@ -6,14 +6,15 @@
 Spawns the viewer of the installed rerun-sdk with ``--headless`` (on a machine without a GPU it
 renders with Mesa's software Vulkan, lavapipe: Debian's ``mesa-vulkan-drivers``), opens the file
 with its default blueprint, puts the time cursor ``--before-end`` seconds before the end of the
-``stamp`` timeline, paused, and saves the picture. A software renderer on a busy machine may miss
-the viewer's 15 s deadline for a frame: it is asked again, a few times.
+``stamp`` timeline, paused, waits for it to load and settle, and saves the picture. A software
+renderer on a busy machine may miss the viewer's 15 s deadline for a frame: it is asked again.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,8 @@ def main() -> None:
                    help=f"time cursor this long before the end of the {TIMELINE} timeline (default 2 s)")
     p.add_argument("--port", type=int, default=9877, help="the viewer's port (default 9877)")
     p.add_argument("--tries", type=int, default=8, help="ask for the frame this many times at most")
+    p.add_argument("--settle", type=float, default=15.0, metavar="S",
+                   help="wait this long after loading before the picture (default 15 s)")
     args = p.parse_args()
     viewer = ViewerClient.spawn(headless=True, port=args.port,
                                 executable_path=str(Path(sys.executable).parent / "rerun"))
@@ -39,6 +42,10 @@ def main() -> None:
         end = next(t.end for t in recording.timelines if t.name == TIMELINE)
         cursor = np.datetime64(end - int(args.before_end * 1e9), "ns")
         viewer.set_time(TIMELINE, timestamp=cursor, play_state="paused")
+        deadline = time.monotonic() + 120
+        while viewer.get_state().loading and time.monotonic() < deadline:
+            time.sleep(1.0)
+        time.sleep(args.settle)  # chunks fetched on demand, the start-up notices gone
         for attempt in range(1, args.tries + 1):
             try:
                 viewer.save_screenshot(str(Path(args.png).resolve()))
