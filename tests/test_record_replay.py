@@ -68,8 +68,8 @@ def by_stamp(poses: list) -> dict[int, list]:
     return out
 
 
-def differences(replayed: list, recorded: list) -> list[tuple[float, float]]:
-    """(position m, heading rad) between replayed and recorded poses of the same stamp.
+def differences(replayed: list, recorded: list) -> list[tuple[float, float, int]]:
+    """(position m, heading rad, stamp) between replayed and recorded poses of the same stamp.
 
     Both services stamp a pose with the last wheel sample it covers; which samples end a 20 ms
     batch depends on when they arrive, so about half the stamps are common to both runs. Between
@@ -81,7 +81,7 @@ def differences(replayed: list, recorded: list) -> list[tuple[float, float]]:
     a, b = by_stamp(replayed), by_stamp(recorded)
     out = []
     for stamp in sorted(set(a) & set(b)):
-        pairs = [(math.hypot(p.x - q.x, p.y - q.y), abs(wrap_angle(p.theta - q.theta))) for p in a[stamp]
+        pairs = [(math.hypot(p.x - q.x, p.y - q.y), abs(wrap_angle(p.theta - q.theta)), stamp) for p in a[stamp]
                  for q in b[stamp]]
         out.append(min(pairs))
     return out
@@ -194,18 +194,20 @@ async def test_record_the_driven_robot_and_replay_it_into_fresh_services(make_ro
     moving = [p for p in odom if p.v or p.w]
     odom_diff = differences(moving, rec_odom)
     loc_diff = differences(loc, rec_loc)
+    worst = max(loc_diff)
+    moved = next(p.stamp for p in rec_odom if p.v or p.w)
     print(f"odom/pose: {len(odom_diff)} of {len(moving)} poses while moving at common stamps, max difference "
-          f"{max(p for p, _ in odom_diff) * 1e3:.4f} mm {math.degrees(max(h for _, h in odom_diff)):.5f} deg")
-    print(f"loc/pose: {len(loc_diff)} poses at common stamps, max difference "
-          f"{max(p for p, _ in loc_diff) * 1e3:.3f} mm {math.degrees(max(h for _, h in loc_diff)):.4f} deg; "
-          "final recorded "
+          f"{max(p for p, _, _ in odom_diff) * 1e3:.4f} mm {math.degrees(max(h for _, h, _ in odom_diff)):.5f} deg")
+    print(f"loc/pose: {len(loc_diff)} poses at common stamps, max difference {worst[0] * 1e3:.3f} mm "
+          f"({(worst[2] - moved) * 1e-9:+.2f} s from the start of the drive), "
+          f"{math.degrees(max(h for _, h, _ in loc_diff)):.4f} deg; final recorded "
           f"({rec_loc[-1].x:.4f}, {rec_loc[-1].y:.4f}), replayed ({loc[-1].x:.4f}, {loc[-1].y:.4f})")
     assert math.dist((rec_odom[0].x, rec_odom[0].y), (rec_odom[-1].x, rec_odom[-1].y)) > 0.5
     assert len(odom_diff) > 100
-    assert max(p for p, _ in odom_diff) < 0.001
+    assert max(p for p, _, _ in odom_diff) < 0.001
     assert len(loc_diff) > 50
-    assert max(p for p, _ in loc_diff) < 0.01
-    assert math.dist((rec_loc[-1].x, rec_loc[-1].y), (loc[-1].x, loc[-1].y)) < 0.001  # at rest, every frame in
+    assert worst[0] < 0.01
+    assert math.dist((rec_loc[-1].x, rec_loc[-1].y), (loc[-1].x, loc[-1].y)) < 0.01  # at rest, every frame in
 
 
 def msgspec_decode(type_, data: bytes):
