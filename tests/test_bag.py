@@ -22,6 +22,7 @@ from mcap.writer import Writer
 from icefloe import config as config_mod
 from icefloe.bag import Bag, BagWriter, channels
 from icefloe.bag.export import to_csv
+from icefloe.bag.replay import ReplayOptions, choose
 from icefloe.errors import BadRecording
 from icefloe.schemas import codec, export, keys
 from icefloe.schemas import messages as m
@@ -219,6 +220,11 @@ def test_another_tools_file_is_replayed_key_by_key_as_raw_bytes_or_refused(tmp_p
     assert "'/a/*/b' cannot be a Zenoh key" in plans["/a/*/b"].note
     # Without --robot, another tool's topics become keys of their own.
     assert Bag([tmp_path / "ros.mcap"]).channels()[0].key == "odom"
+    # A refused channel has no key: it is reported when everything is replayed, not when keys are chosen.
+    everything = choose(list(plans.values()), ReplayOptions())
+    assert [len(everything[0]), len(everything[1])] == [4, 1]
+    some = choose(list(plans.values()), ReplayOptions(keys=["odom"], exclude=["pose"]))
+    assert [[c.key for c in some[0]], some[1]] == [["icefloe/sim/odom"], []]
 
 
 def test_max_size_splits_a_recording_into_whole_files_read_back_in_order(tmp_path: Path) -> None:

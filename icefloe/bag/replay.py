@@ -91,8 +91,9 @@ def is_command(key: str) -> bool:
 
 def choose(channels: Sequence[ChannelPlan], options: ReplayOptions) -> tuple[list[ChannelPlan], list[ChannelPlan]]:
     """(channels to replay, channels refused), after ``options.keys`` and ``options.exclude``."""
-    chosen = [c for c in channels if c.refused or ((not options.keys or selects(options.keys, c.key))
-                                                   and not selects(options.exclude, c.key))]
+    chosen = [c for c in channels if (c.refused and not options.keys)  # a refused one has no key to select by
+              or (not c.refused and (not options.keys or selects(options.keys, c.key))
+                  and not selects(options.exclude, c.key))]
     return [c for c in chosen if not c.refused], [c for c in chosen if c.refused]
 
 
