@@ -202,6 +202,13 @@ def parse_cyclictest(text: str) -> dict[str, float]:
 # --------------------------------------------------------------------------- main
 
 
+def read_state(shared) -> dict:
+    """The cycle's state, read again until no write is in progress (`Shared.read_state`)."""
+    while (state := shared.read_state()) is None:
+        time.sleep(0.001)
+    return state
+
+
 async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamespace):
     from icefloe import config as config_mod
     from icefloe.runtime import Node
@@ -215,7 +222,7 @@ async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamesp
         raw = node.subscribe_raw(keys.key(config.name, keys.WHEELS), maxsize=100_000)
         await asyncio.wait_for(anext(raw), 20)
         shared = Shared.attach(block_name(config.name))
-        state0, hist0 = shared.read_state(), list(shared.hist)
+        state0, hist0 = read_state(shared), list(shared.hist)
         cpus = sorted(os.sched_getaffinity(0))
         other_cpu = cpus[0] if len(cpus) > 1 else cpus[-1]
         cyclic = subprocess.Popen(
@@ -248,7 +255,7 @@ async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamesp
                 # Cross-check on another clock: hwbridge's own stamp (taken right after the
                 # exchange) -> received.
                 stamp_lat.append((sample.received + wall_offset) * 1e9 - w.stamp)
-        state1, hist1 = shared.read_state(), list(shared.hist)
+        state1, hist1 = read_state(shared), list(shared.hist)
         shared.close()
         cyclic_out = cyclic.communicate()[0] if cyclic else ""
     delta = [b - a for a, b in zip(hist0, hist1, strict=True)]
@@ -284,7 +291,7 @@ async def measure_penguinpi(config_path: Path, args: argparse.Namespace) -> dict
         loops = node.subscribe(keys.LOOP, latest=False)
         await asyncio.wait_for(anext(loops), 30)
         shared = Shared.attach(block_name(config.name))
-        state0, hist0 = shared.read_state(), list(shared.hist)
+        state0, hist0 = read_state(shared), list(shared.hist)
         twist = node.publisher(keys.TWIST)
         rates: list[float] = []
         end = time.monotonic() + args.seconds
@@ -293,7 +300,7 @@ async def measure_penguinpi(config_path: Path, args: argparse.Namespace) -> dict
             await asyncio.sleep(0.05)
             while loops.pending():
                 rates.append((await anext(loops)).link_rate)
-        state1, hist1 = shared.read_state(), list(shared.hist)
+        state1, hist1 = read_state(shared), list(shared.hist)
         shared.close()
     delta = [b - a for a, b in zip(hist0, hist1, strict=True)]
     p50, p99, p999, pmax = percentiles(delta, (0.5, 0.99, 0.999, 1.0))

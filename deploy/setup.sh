@@ -10,12 +10,32 @@ ensure_venv() {
         echo "== creating .venv with $("$py" --version)"
         "$py" -m venv .venv
     fi
-    local stamp=".venv/.icefloe-$extras-$(cksum < pyproject.toml | cut -d' ' -f1)"
+    local sum stamp
+    sum="$(cksum < pyproject.toml | cut -d' ' -f1)"
+    stamp=".venv/.icefloe-$extras-$sum"
+    if [ "$extras" = viz ] && [ -e ".venv/.icefloe-dev-$sum" ]; then
+        return 0  # the dev extra holds the viz extra: a developer's .venv runs up.sh as it is
+    fi
     if [ ! -e "$stamp" ]; then
         echo "== installing icefloe[$extras] into .venv (first run takes a few minutes)"
         .venv/bin/python -m pip install --quiet --upgrade pip
         .venv/bin/python -m pip install --quiet -e ".[$extras]"
         rm -f .venv/.icefloe-"$extras"-*
         touch "$stamp"
+    fi
+}
+
+# Usage: ensure_apt COMMAND PACKAGE...   install Debian packages when COMMAND is missing, if we are
+# root on Debian (tests/run.sh: Xvfb and Mesa's software renderers for the viewer tests). Otherwise
+# say so and go on: the tests that need them skip and say why.
+ensure_apt() {
+    local cmd="$1"; shift
+    command -v "$cmd" >/dev/null && return 0
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+        echo "== installing $* (apt-get)"
+        { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@"; } >/dev/null \
+            || echo "   could not install $*: the tests that need $cmd will skip"
+    else
+        echo "== $cmd is missing (apt-get install $*): the tests that need it will skip"
     fi
 }

@@ -56,3 +56,19 @@ class BadRecording(IcefloeError):
     The message names the file and, where it is about one, the channel's topic, e.g.
     ``run.mcap: not an MCAP file (it starts with b'PK\\x03\\x04')``.
     """
+
+
+class MotionError(IcefloeError):
+    """A closed-loop motion (`Robot.forward`, `Robot.turn`) did not get there; the robot is stopped."""
+
+
+class MotionTimeout(MotionError, TimeoutError):
+    """The motion was not done within its timeout (a blocked wheel, a speed the motors cannot hold).
+
+    The message says how far it got, e.g. ``forward(0.5 m): 0.12 m done after 6.0 s (timeout)``.
+    """
+
+
+class MotionStopped(MotionError):
+    """Something else ended the motion first: a ``cmd/stop`` from another program, or another
+    command from this one."""

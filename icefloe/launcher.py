@@ -3,8 +3,10 @@
 The router starts first (every service is a client of it), then the services
 listed in the robot config, in order. Each child's output is prefixed with its
 name. A child that dies is restarted with back-off (1 s, 2 s, 4 s ... 30 s; the
-back-off resets once it has run for a minute). Ctrl-C (or SIGTERM) stops the
-services in reverse order with SIGINT, waits, and kills what is left, so no
+back-off resets once it has run for a minute); one that exits 0 (it is done, e.g. the
+viewer was closed) or 2 (it cannot start as configured, and said why) is not. Ctrl-C (or SIGTERM) stops the
+services in reverse order with SIGTERM (a service exits cleanly, as on Ctrl-C; one still starting up
+just ends, without a traceback from the middle of an import), waits, and kills what is left, so no
 process stays behind.
 """
 
@@ -21,8 +23,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .config import RobotConfig
-from .runtime import run_async
+from .runtime import CANNOT_START, run_async
 
+DONE = {0: "finished", CANNOT_START: "it cannot start as configured (see above)"}
+"""Exit statuses after which a child is not restarted (like systemd's Restart=on-failure with
+RestartPreventExitStatus=2)."""
 STOP_TIMEOUT = 8.0
 MAX_BACKOFF = 30.0
 HEALTHY_AFTER = 60.0
@@ -96,6 +101,9 @@ class Launcher:
             await asyncio.gather(*child.pumps, return_exceptions=True)
             if self._stopping:
                 return
+            if code in DONE:  # it chose to end (the viewer was closed), or says restarting cannot help
+                self.say(child.name, f"exited with code {code}: {DONE[code]}; not restarting it")
+                return
             if time.monotonic() - child.started > HEALTHY_AFTER:
                 child.backoff = 1.0
             self.say(child.name, f"exited with code {code}; restarting in {child.backoff:.0f} s")
@@ -132,13 +140,13 @@ class Launcher:
         await asyncio.gather(*tasks, return_exceptions=True)
 
     async def stop(self) -> None:
-        """SIGINT to the services in reverse order (router last), then SIGKILL what remains."""
+        """SIGTERM to the services in reverse order (router last), then SIGKILL what remains."""
         self._stopping = True
         self.say("up", "stopping")
         for child in reversed(self.children):
             if child.process and child.process.returncode is None:
                 with contextlib.suppress(ProcessLookupError):
-                    child.process.send_signal(signal.SIGINT)
+                    child.process.send_signal(signal.SIGTERM)
                 try:
                     await asyncio.wait_for(child.process.wait(), STOP_TIMEOUT)
                 except TimeoutError:

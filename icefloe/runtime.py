@@ -53,7 +53,7 @@ import zenoh
 from . import config as config_mod
 from .config import RobotConfig
 from .credentials import GUEST_PASSWORD, GUEST_USER
-from .errors import BadPayload, ConfigError, NotReachable
+from .errors import BadPayload, ConfigError, IcefloeError, NotReachable
 from .schemas import codec, keys
 from .schemas.keys import Topic
 from .schemas.messages import Log, Message
@@ -141,13 +141,16 @@ class Subscription(Generic[T]):
         *,
         latest: bool,
         maxsize: int,
+        typed: bool = True,
     ) -> None:
         self.key_expr = key_expr
         self.latest = latest
         self.skipped = 0
         """Samples overwritten (latest) or dropped because the queue was full (fifo)."""
         self.rejected = 0
-        """Samples dropped because they did not decode."""
+        """Samples dropped because they did not decode, or came on a wildcard (`Node.own_key`)."""
+        self._typed = typed
+        self._node = node
         self._decode = decode
         self._loop = asyncio.get_running_loop()
         self._items: deque[RawSample] = deque(maxlen=1 if latest else maxsize)
@@ -188,6 +191,9 @@ class Subscription(Generic[T]):
                     raise StopAsyncIteration
                 await self._wake.wait()
                 continue
+            if self._typed and not self._node.own_key(self.key_expr, raw.key):
+                self.rejected += 1
+                continue
             try:
                 return self._decode(raw)
             except BadPayload as exc:
@@ -221,7 +227,8 @@ class Batches(Generic[T]):
         self.key_expr = key_expr
         self.period = period
         self.rejected = 0
-        """Samples dropped because they did not decode."""
+        """Samples dropped because they did not decode, or came on a wildcard (`Node.own_key`)."""
+        self._node = node
         self._decode = decode
         self._deadline: float | None = None
         self._closed = False
@@ -246,7 +253,10 @@ class Batches(Generic[T]):
         """The messages that arrived since the last list, now, without waiting."""
         batch: list[T] = []
         while (sample := self._sub.try_recv()) is not None:
-            raw = RawSample(self.key_expr, sample.payload.to_bytes(), str(sample.encoding), 0.0)
+            raw = RawSample(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), 0.0)
+            if not self._node.own_key(self.key_expr, raw.key):
+                self.rejected += 1
+                continue
             try:
                 batch.append(self._decode(raw))
             except BadPayload as exc:
@@ -309,9 +319,22 @@ class Node:
         self._closables: list[Any] = []
         self._log_handler: _BusLogHandler | None = None
         self._tasks: set[asyncio.Task[Any]] = set()
+        self._wildcards = LimitedLog(self.log)
 
     def key(self, topic: Topic | str) -> str:
         return keys.key(self.robot, topic)
+
+    def own_key(self, key_expr: str, arrived: str) -> bool:
+        """Did a message for ``key_expr`` come on one concrete key (``arrived``), as every real
+        sender puts it? A put or query on a wildcard (``icefloe/*/cmd/twist`` reaches the
+        subscriber of ``icefloe/sim/cmd/twist`` too, and arrives as such) is not taken: False,
+        and one rate-limited warning naming it. Typed subscriptions and command queryables use
+        this; so does any raw subscriber that takes commands (hwbridge's ``cmd/stop``)."""
+        if keys.is_concrete(arrived):
+            return True
+        self._wildcards.warning(f"dropped a message sent to {arrived} (for {key_expr}): a wildcard, "
+                                "not a key; messages are taken on their own key only")
+        return False
 
     async def __aenter__(self) -> Node:
         with service_zenoh_pools() if self.one_zenoh_thread else contextlib.nullcontext():
@@ -365,7 +388,8 @@ class Node:
 
     def subscribe_raw(self, key_expr: str, *, maxsize: int = 1024) -> Subscription[Any]:
         """Undecoded samples of any key expression (wildcards allowed), in order."""
-        sub: Subscription[Any] = Subscription(self, key_expr, lambda raw: raw, latest=False, maxsize=maxsize)
+        sub: Subscription[Any] = Subscription(self, key_expr, lambda raw: raw, latest=False, maxsize=maxsize,
+                                              typed=False)
         self._closables.append(sub)
         return sub
 
@@ -384,6 +408,9 @@ class Node:
         key_expr = self.key(topic)
 
         async def answer(query: zenoh.Query) -> None:
+            if topic.command and not self.own_key(key_expr, str(query.key_expr)):
+                query.drop()  # no answer: a command is taken on its own key only
+                return
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 encoding = str(query.encoding) if query.encoding is not None else ""
@@ -432,10 +459,13 @@ class Node:
         return await asyncio.to_thread(ask)
 
     async def alive(self, robot: str | None = None) -> list[str]:
-        """Services holding a liveliness token on a robot (``*`` for every robot)."""
-        pattern = keys.alive_key(robot or self.robot, "*")
+        """Services holding a liveliness token on a robot (``*`` for every robot): the tokens
+        ``icefloe/<robot>/alive/<service>``; a wildcard token (``icefloe/*/alive/x``) is no service."""
+        robot = robot or self.robot
+        pattern = keys.alive_key(robot, "*")
         replies = await asyncio.to_thread(lambda: list(self.session.liveliness().get(pattern, timeout=1.0)))
-        return sorted({str(r.ok.key_expr) for r in replies if r.ok is not None})
+        tokens = {str(r.ok.key_expr) for r in replies if r.ok is not None}
+        return sorted(t for t in tokens if (who := keys.alive_of(t)) and robot in ("*", who[0]))
 
 
 class _BusLogHandler(logging.Handler):
@@ -488,6 +518,35 @@ def raw_session(config: RobotConfig) -> zenoh.Session:
         return zenoh.open(zenoh_config(config, connect=config.zenoh.connect))
 
 
+def listening(endpoint: str, timeout: float = 1.0) -> bool:
+    """Does anything accept a TCP connection at a Zenoh endpoint (``tcp/host:port``, ``tls/...``)?
+    True for other kinds of endpoints, which we cannot probe."""
+    import socket
+
+    proto, _, address = endpoint.partition("/")
+    if proto not in ("tcp", "tls"):
+        return True
+    host, _, port = address.split("#", 1)[0].rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+def why_unreachable(config: RobotConfig, endpoints: Sequence[str]) -> str:
+    """One line saying why a session could not open, and what to do (Zenoh only says
+    "Unable to connect", with a path in its Rust source, whatever the reason)."""
+    if not any(listening(e) for e in endpoints):
+        return ("nothing listens there. Is the robot up? `./deploy/up.sh` runs the simulated one; for a "
+                "real robot give its address (--connect tcp/<robot-ip>:7447, or Robot(connect=...))")
+    if config.zenoh.user:
+        return (f"the router refused user {config.zenoh.user!r}: wrong credentials? (ask the robot's owner "
+                "for its credentials file, made by `icefloe credentials --sheet`, and give --credentials FILE)")
+    return ("the router refused the session: it wants a user and password "
+            "(give --credentials FILE, the robot's credentials file), or it is not a Zenoh router")
+
+
 async def open_session(config: RobotConfig, *, mode: str = "client", log: logging.Logger | None = None,
                        retry: bool = True) -> zenoh.Session:
     """Open a Zenoh session to the robot's router, retrying while it is not up yet."""
@@ -498,7 +557,7 @@ async def open_session(config: RobotConfig, *, mode: str = "client", log: loggin
         try:
             zc = zenoh_config(config, mode=mode, connect=endpoints)
             return await asyncio.to_thread(zenoh.open, zc)
-        except zenoh.ZError as exc:
+        except zenoh.ZError:
             if not config.zenoh.user and not config.zenoh.access_control:
                 # Perhaps the robot requires credentials: try the read-only guest once.
                 with contextlib.suppress(zenoh.ZError):
@@ -508,7 +567,8 @@ async def open_session(config: RobotConfig, *, mode: str = "client", log: loggin
                                 GUEST_USER)
                     return session
             if not retry:
-                raise NotReachable(f"cannot reach a Zenoh router at {', '.join(endpoints)}: {exc}") from None
+                raise NotReachable(f"cannot reach a Zenoh router at {', '.join(endpoints)}: "
+                                   f"{why_unreachable(config, endpoints)}") from None
             if delay >= 1.0:
                 log.warning("cannot reach a Zenoh router at %s yet; retrying", ", ".join(endpoints))
             await asyncio.sleep(delay)
@@ -535,6 +595,11 @@ def load_config(args: argparse.Namespace) -> RobotConfig:
     return cfg
 
 
+CANNOT_START = 2
+"""Exit status of a service that cannot start as configured (the same as a bad config):
+it says why in one line, and restarting it will not help."""
+
+
 def run_async(coro: Coroutine[Any, Any, T2]) -> T2:
     """``asyncio.run``, on uvloop where it is installed: it halves the hop from Zenoh's
     threads into the loop (bench/runtime_latency.py measures it)."""
@@ -545,20 +610,32 @@ def run_async(coro: Coroutine[Any, Any, T2]) -> T2:
     return uvloop.run(coro)
 
 
+def process_name() -> str:
+    """``icefloe <service>`` for ``python -m icefloe.services.<service>`` (or the router), else ``icefloe``."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    module = spec.name.removesuffix(".__main__") if spec else ""
+    if module.startswith("icefloe.services.") or module == "icefloe.router":
+        return f"icefloe {module.rsplit('.', 1)[-1]}"
+    return "icefloe"
+
+
 def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str] | None = None,
         description: str | None = None) -> None:
     """Run a service's ``main(config)`` until it returns or SIGINT/SIGTERM arrives.
 
     A non-zero int returned by ``main`` becomes the process's exit status (a signal exits 0).
+    An `IcefloeError` (a bad config, a missing device, a port in use, named in its message) is
+    printed as one line and exits with `CANNOT_START`: restarting will not help.
     """
     args = arguments(description or main.__module__, argv)
     logging.basicConfig(stream=sys.stderr, level=args.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         cfg = load_config(args)
+        config_mod.private_dir(cfg.runtime_dir)  # sockets, ptys, the router's password file: ours only
     except ConfigError as exc:
         print(f"icefloe: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+        raise SystemExit(CANNOT_START) from None
 
     async def supervised() -> int | None:
         loop = asyncio.get_running_loop()
@@ -570,7 +647,11 @@ def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str
             return await main(cfg)
         except asyncio.CancelledError:
             return 0
+        except IcefloeError as exc:  # could not start or go on: one line that says why, no traceback
+            print(f"{service}: {exc}", file=sys.stderr, flush=True)
+            return CANNOT_START
 
+    service = process_name()
     status = run_async(supervised())
     if status:
         raise SystemExit(status)

@@ -10,6 +10,7 @@ and each schema names the keys that carry its message (``x-icefloe-keys``).
 from __future__ import annotations
 
 import ast
+import functools
 import inspect
 import itertools
 import json
@@ -30,7 +31,8 @@ def message_types() -> list[type[messages.Message]]:
     ]
 
 
-def _field_docs() -> dict[tuple[str, str], str]:
+@functools.cache
+def field_docs() -> dict[tuple[str, str], str]:
     """(class, field) -> the string literal written under the field in messages.py."""
     tree = ast.parse(inspect.getsource(messages))
     docs: dict[tuple[str, str], str] = {}
@@ -46,7 +48,7 @@ def _field_docs() -> dict[tuple[str, str], str]:
 
 def schemas() -> dict[str, str]:
     """File name -> JSON text, for every message."""
-    docs = _field_docs()
+    docs = field_docs()
     carried: dict[str, list[str]] = {}
     for topic in keys.TABLE.values():
         carried.setdefault(topic.type.__name__, []).append(f"icefloe/<robot>/{topic.name}")

@@ -138,16 +138,11 @@ async def test_stop_latches_and_motion_and_halt(make_robot) -> None:
             await node.query(keys.MOTION, m.Motion(left=0.1, right=0.1, duration=1.0, accel=0.6))
 
 
-async def test_a_dead_cycle_is_restarted_and_clamps_are_logged(make_robot) -> None:
+async def test_a_dead_cycle_stops_the_board_and_hwbridge_exits_and_clamps_are_logged(make_robot) -> None:
     robot = make_robot(ICO_V2)
     async with robot.node() as node:
         logs = node.subscribe(keys.LOG, latest=False, maxsize=1000)
         _sim, hw = await start_stack(robot, node)
-        shared = Shared.attach(block_name(robot.name))  # the cycle writes its pid there
-        rt_pid = shared.read_state()["pid"]
-        shared.close()
-        assert rt_pid not in (0, hw.popen.pid)
-        os.kill(rt_pid, signal.SIGKILL)                  # the real-time process only
         texts: list[str] = []
 
         async def until(needle: str) -> None:
@@ -156,11 +151,23 @@ async def test_a_dead_cycle_is_restarted_and_clamps_are_logged(make_robot) -> No
                 if needle in line.text:
                     return
 
-        await asyncio.wait_for(until("real-time process exited with status -9; restarting"), 10)
-        await asyncio.wait_for(until("board link up"), 10)
         node.publisher(keys.TWIST).put(m.Twist(v=3.0, w=0.0))
         await asyncio.wait_for(until("cmd/twist: clamped to 0.5 m/s per wheel"), 10)
-        assert hw.alive()
+        shared = Shared.attach(block_name(robot.name))  # the cycle writes its pid there
+        rt_pid = shared.read_state()["pid"]
+        shared.close()
+        assert rt_pid not in (0, hw.popen.pid)
+        async with driving(node, v=0.2, rate_hz=50):
+            await asyncio.sleep(0.5)
+            os.kill(rt_pid, signal.SIGKILL)              # the real-time process only
+            # The board hears EXIT from the bus process (not only its watchdog), and hwbridge
+            # exits for its supervisor (icefloe up, systemd) to start both again.
+            await wait_for(lambda: not hw.alive(), timeout=15)
+            state = await sim_state(node)
+        assert hw.popen.returncode == 4, hw.output
+        assert "real-time process exited with status -9; the board was told to stop" in hw.output
+        assert (state.duty_left, state.duty_right) == (0.0, 0.0)
+        assert state.last_frame[0] == Op.EXIT, state  # the last word: the bus process's EXIT
 
 
 async def test_corrupt_frames_are_counted_not_used(make_robot) -> None:

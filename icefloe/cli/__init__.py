@@ -1,11 +1,17 @@
+# PYTHON_ARGCOMPLETE_OK
 """The `icefloe` command: one small module per group of verbs, as ros2cli does.
 
-    robot.py     up, router, credentials, config     run and set up a robot
-    bus.py       status, topics, echo, hz, pub, query  look at and talk to the bus
-    schemas.py   schemas                             the JSON Schemas of the messages
-    viz.py       viz                                 the Rerun view of robots (live, or from a recording)
-    gateware.py  gateware build, pins                the icoBoard's FPGA design
-    record.py    record, replay, bag, export         recordings: MCAP files, played back onto the bus
+    robot.py       up, router, credentials, config     run and set up a robot
+    bus.py         status, echo, hz, pub, query        listen and talk to the bus
+    introspect.py  topics, info, services              what is on the bus, who declares it
+    teleop.py      teleop                              drive from the keyboard
+    schemas.py     schemas                             the JSON Schemas of the messages
+    record.py      record, replay, bag, export         recordings: MCAP files, played back onto the bus
+    viz.py         viz                                 the Rerun view of robots (live, or from a recording)
+    gateware.py    gateware build, pins                the icoBoard's FPGA design
+    snapshot.py    snapshot                            save a frame of the robot's camera
+    calibrate.py   calibrate                           calibrate the robot's camera
+    completion.py  completion                          shell completion (argcomplete)
 
 A verb module has a ``register(verbs)`` function that adds its sub-parsers, each with
 ``set_defaults(run=<function of the parsed args returning an exit status>)``. To add a verb
@@ -16,12 +22,16 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
+import argcomplete
+
 from ..errors import IcefloeError
 
-VERB_MODULES = ("robot", "bus", "record", "schemas", "viz", "gateware")
+VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
+                "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\
@@ -44,11 +54,16 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parser().parse_args(sys.argv[1:] if argv is None else list(argv))
     try:
+        p = parser()
+        argcomplete.autocomplete(p)  # answers the shell's completion request and exits, if that is what this is
+        args = p.parse_args(sys.argv[1:] if argv is None else list(argv))
         return int(args.run(args) or 0)
     except IcefloeError as exc:
         print(f"icefloe: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # `icefloe echo log | head`: the reader is gone, nothing to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141

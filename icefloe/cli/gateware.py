@@ -34,8 +34,9 @@ def pins(args: argparse.Namespace) -> int:
 
 
 def register(verbs: argparse._SubParsersAction) -> None:
-    p = verbs.add_parser("gateware", help="the icoBoard's FPGA design: build the bitstream, show the pin map")
-    sub = p.add_subparsers(dest="gateware_verb", required=True, metavar="ACTION")
+    help_ = "the icoBoard's FPGA design: build the bitstream, show the pin map"
+    p = verbs.add_parser("gateware", help=help_, description=help_)
+    sub = p.add_subparsers(dest="gateware_verb", required=True, metavar="ACTION", help="build or pins")
     b = sub.add_parser("build", help="build the bitstream for a robot's [board] (default: sim-icoboard); "
                                      "fails unless it meets 100 MHz")
     add_config_argument(b, positional=True)

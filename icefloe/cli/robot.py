@@ -4,15 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 from pathlib import Path
-
-import msgspec
 
 from .. import config as config_mod
 from ..config import RobotConfig
 from ..errors import ConfigError
+from ..services.viz.viewer import display_problem, how_to_look
 from .common import add_config_argument
 
 
@@ -25,8 +22,11 @@ def up(args: argparse.Namespace) -> int:
         path = sim_override(path, cfg)
         cfg = config_mod.load(path)
     services = args.only.split(",") if args.only else list(cfg.services)
-    if not args.only and not args.no_viz and can_show_viewer():
-        services.append("viz")  # the laptop's view of the robot
+    if not args.only and not args.no_viz:
+        if (problem := viewer_problem()) is None:
+            services.append("viz")  # the laptop's view of the robot
+        else:
+            print(f"[up] {problem}, so no viewer; {how_to_look()}", flush=True)
     skip = args.skip.split(",") if args.skip else []
     launcher.up(cfg, path, [s for s in services if s not in skip])
     return 0
@@ -34,20 +34,20 @@ def up(args: argparse.Namespace) -> int:
 
 def sim_override(path: Path, cfg: RobotConfig) -> Path:
     """A config that extends ``path`` with the simulated board (for `up --sim`)."""
-    out = cfg.runtime_dir / "sim-override.toml"
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = config_mod.private_dir(cfg.runtime_dir) / "sim-override.toml"
     services = cfg.services if "sim" in cfg.services else ["sim", *cfg.services]
     out.write_text(f'extends = "{path.resolve()}"\nservices = {json.dumps(services)}\n\n'
                    '[board]\nbackend = "sim"\nserial_port = "{run_dir}/ttyPPI"\n')
     return out
 
 
-def can_show_viewer() -> bool:
+def viewer_problem() -> str | None:
+    """Why `up` cannot open the Rerun viewer here (one line), or None if it can."""
     try:
         import rerun  # noqa: F401
     except ImportError:
-        return False
-    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+        return "the Rerun SDK is not installed (pip install 'icefloe[viz]')"
+    return display_problem()
 
 
 def router(args: argparse.Namespace) -> int:
@@ -58,11 +58,11 @@ def router(args: argparse.Namespace) -> int:
     if not args.lab:
         run(router_mod.main, argv)
         return 0
-    owners = router_mod.lab_owners(Path(args.lab))
+    lab_dir = Path(args.lab)
+    router_mod.lab_owners(lab_dir)  # a bad folder: say so before anything starts
 
     async def lab(config: RobotConfig) -> None:
-        names = ", ".join(robot for robot, _, _ in owners)
-        await router_mod.serve(config, router_mod.router_config(config, owners), f"lab router for {names}")
+        await router_mod.lab_main(config, lab_dir)
 
     run(lab, argv)
     return 0
@@ -90,7 +90,7 @@ def credentials(args: argparse.Namespace) -> int:
 
 def show_config(args: argparse.Namespace) -> int:
     cfg = config_mod.load(args.config)
-    print(json.dumps(msgspec.to_builtins(cfg), indent=2))
+    print(json.dumps(config_mod.printable(cfg), indent=2))  # the password as "***"
     return 0
 
 
@@ -105,12 +105,17 @@ def register(verbs: argparse._SubParsersAction) -> None:
     p.add_argument("--skip", metavar="A,B", help="comma-separated services not to run")
     p.set_defaults(run=up)
 
-    p = verbs.add_parser("router", help="run only a robot's Zenoh router, or a lab router (--lab)")
+    p = verbs.add_parser("router", help="run only a robot's Zenoh router, or a lab router (--lab)",
+                         description="Run only a robot's Zenoh router (what `up` starts first), or with --lab "
+                                     "the router of a lab of robots with access control (docs/lab.md).")
     add_config_argument(p, positional=True)
     p.add_argument("--lab", metavar="DIR", help="folder of robots' credentials files: route and guard all of them")
     p.set_defaults(run=router)
 
-    p = verbs.add_parser("credentials", help="make a robot's credentials file (once), or print its sheet")
+    p = verbs.add_parser("credentials", help="make a robot's credentials file (once), or print its sheet",
+                         description="Make the credentials file of a robot with access control (a random "
+                                     "password, mode 0600) where its config says, unless it exists; --sheet "
+                                     "prints what a student needs to drive it (docs/lab.md).")
     add_config_argument(p, positional=True)
     p.add_argument("--host", help="the robot's address, written into the file for laptops")
     p.add_argument("--replace", action="store_true", help="make a new password even if one exists")
@@ -118,6 +123,9 @@ def register(verbs: argparse._SubParsersAction) -> None:
                    help="print a sheet with the password, to hand to whoever has the robot")
     p.set_defaults(run=credentials)
 
-    p = verbs.add_parser("config", help="check a robot config and print it resolved")
+    p = verbs.add_parser("config", help="check a robot config and print it resolved",
+                         description="Read a robot config (by name or path, with what it extends), check every "
+                                     "key, and print the result as JSON; a bad config gets one line naming the "
+                                     "file and the key.")
     add_config_argument(p, positional=True)
     p.set_defaults(run=show_config)

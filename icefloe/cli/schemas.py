@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def schemas(args: argparse.Namespace) -> int:
@@ -13,11 +14,15 @@ def schemas(args: argparse.Namespace) -> int:
         for name in bad:
             print(f"stale: schemas/json/{name} (run `icefloe schemas`)")
         return 1 if bad else 0
-    print(f"wrote {len(export.write())} schemas to {export.JSON_DIR}")
+    out = Path(args.out) if args.out else export.JSON_DIR
+    print(f"wrote {len(export.write(out))} schemas to {out}")
     return 0
 
 
 def register(verbs: argparse._SubParsersAction) -> None:
-    p = verbs.add_parser("schemas", help="regenerate the JSON Schemas in schemas/json from the message Structs")
+    p = verbs.add_parser("schemas", help="regenerate the JSON Schemas in schemas/json from the message Structs",
+                         description="Write one JSON Schema per message: into the package's schemas/json "
+                                     "(in a checkout), or into --out DIR (e.g. for a program in another language).")
     p.add_argument("--check", action="store_true", help="only check they are current; exit 1 if stale")
+    p.add_argument("--out", metavar="DIR", help="write them into DIR instead of the package's schemas/json")
     p.set_defaults(run=schemas)

@@ -4,22 +4,15 @@ from __future__ import annotations
 
 import argparse
 
-from ..errors import IcefloeError
 from ..services.viz.__main__ import __doc__ as VIZ_DOC
 from ..services.viz.__main__ import add_service_arguments
 
 
 def viz(args: argparse.Namespace) -> int:
-    try:
-        import rerun  # noqa: F401
-    except ImportError as exc:
-        raise IcefloeError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
     if args.files:
-        from ..runtime import load_config
-        from ..services.viz.options import options_from
-        from ..services.viz.playback import show_files
+        from ..services.viz.__main__ import show_recording
 
-        return show_files(args.files, load_config(args), options_from(args))
+        return show_recording(args)
     from ..services.viz.__main__ import start
 
     start(args)

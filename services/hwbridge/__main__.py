@@ -6,8 +6,10 @@ This is the bus process. It
   it comes), ``io/leds``, ``io/ledarray``, ``io/text``, ``io/screen`` (collected
   every 20 ms) and answers the ``cmd/motion`` and ``cmd/halt`` queries
   (`bridge.Bridge`);
-* starts the real-time process (`rt.py`: the cycle, no Zenoh in it), hands it
-  the commands through shared memory, and restarts it if it dies;
+* starts the real-time process (`rt.py`: the cycle, no Zenoh in it) and hands
+  it the commands through shared memory; if that process dies, tells the board
+  to stop and exits, so that its supervisor (``icefloe up``, systemd) starts
+  both afresh;
 * publishes ``hw/wheels`` (``hwbridge.wheels_rate_hz``), ``hw/loop`` (1 Hz),
   ``hw/battery``, ``io/buttons`` and ``io/dip`` from the state the cycle writes.
 
@@ -31,17 +33,22 @@ import msgspec
 import zenoh
 
 from icefloe.config import RobotConfig
-from icefloe.errors import BadPayload, ConfigError
+from icefloe.errors import BadPayload, BoardError, ConfigError
 from icefloe.runtime import Node, run
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
+from .board import make_board
 from .bridge import Bridge, LoopReport
 from .rt import EXIT_MISMATCH
 from .shm import IO_SLOTS, Shared, block_name
 
-RESTART_DELAY_S = 1.0
-"""Wait before restarting a real-time process that died."""
+EXIT_RT_GONE = 4
+"""Exit status when the real-time process died: the supervisor restarts hwbridge, which starts a
+new cycle on a fresh shared-memory block (the old one may hold a write the dead cycle never finished)."""
+READ_BACKOFF_S = (0.001, 0.1)
+"""First and longest wait before reading the cycle's state again after a read was put off
+(`Shared.read_state` gave None: the cycle was descheduled in the middle of a write)."""
 
 
 def check_config(config: RobotConfig) -> None:
@@ -65,33 +72,51 @@ def check_config(config: RobotConfig) -> None:
 
 
 async def supervise(config: RobotConfig, bridge: Bridge, node: Node) -> int:
-    """Run the real-time process; restart it when it dies; stop it when we are cancelled.
+    """Run the real-time process until it exits (returns hwbridge's exit status); stop it when we
+    are cancelled.
 
-    Returns only when the board refused to run (its exit status)."""
-    payload = msgspec.json.encode(config)
-    shared = bridge.shared
-    while True:
-        proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "icefloe.services.hwbridge.rt", "--shm", shared.name,
-            stdin=asyncio.subprocess.PIPE)
-        assert proc.stdin is not None
-        proc.stdin.write(payload)
-        proc.stdin.close()
-        bridge.rt_pid = proc.pid
-        try:
-            code = await proc.wait()
-        except asyncio.CancelledError:
-            bridge.rt_pid = None
-            await _terminate(proc)
-            raise
+    If it exits by itself, the board refused to run (`EXIT_MISMATCH`), or the cycle is gone
+    (killed, crashed): then nothing drives the board, so tell it to stop and return `EXIT_RT_GONE`.
+    """
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "icefloe.services.hwbridge.rt", "--shm", bridge.shared.name,
+        stdin=asyncio.subprocess.PIPE)
+    assert proc.stdin is not None
+    proc.stdin.write(msgspec.json.encode(config))
+    proc.stdin.close()
+    bridge.rt_pid = proc.pid
+    try:
+        code = await proc.wait()
+    except asyncio.CancelledError:
         bridge.rt_pid = None
-        bridge.forward_messages()  # its last words (e.g. why it refused the board)
-        if code == EXIT_MISMATCH:
-            node.log.error("the board does not match the config; hwbridge stops (see above)")
-            return code
-        node.log.error("real-time process exited with status %s; restarting in %.0f s",
-                       code, RESTART_DELAY_S)
-        await asyncio.sleep(RESTART_DELAY_S)
+        await _terminate(proc)
+        raise
+    bridge.rt_pid = None
+    bridge.forward_messages()  # its last words (e.g. why it refused the board)
+    if code == EXIT_MISMATCH:
+        node.log.error("the board does not match the config; hwbridge stops (see above)")
+        return code
+    stopped = await asyncio.to_thread(stop_board, config)
+    node.log.error("real-time process exited with status %s; %s; hwbridge exits (status %d) for its "
+                   "supervisor to restart it", code, stopped, EXIT_RT_GONE)
+    return EXIT_RT_GONE
+
+
+def stop_board(config: RobotConfig) -> str:
+    """Tell the board to stop the wheels, from the bus process (the cycle is gone); says how it went.
+
+    The same calls the cycle makes on its way out: open the link (PenguinPi: MULTI_ALL_STOP;
+    icoBoard: START, RESET), then `Board.stop` (MULTI_ALL_STOP; EXIT). The link is free: the
+    kernel closed the dead process's serial port or socket.
+    """
+    board = make_board(config, lambda _kind, _text: None)
+    try:
+        board.open(time.monotonic_ns())
+    except (BoardError, OSError) as exc:
+        return f"could not tell the board to stop ({exc})"
+    board.stop()
+    board.close()
+    return "the board was told to stop"
 
 
 async def _terminate(proc: asyncio.subprocess.Process) -> None:
@@ -121,8 +146,14 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
     last_sample = last_battery = last_presses = 0
     last_dip = -1
     next_loop = time.monotonic()
+    backoff = READ_BACKOFF_S[0]
     while True:
         s = shared.read_state()
+        if s is None:  # the cycle was descheduled mid-write (a starved machine): let it finish
+            await asyncio.sleep(backoff)
+            backoff = min(2 * backoff, READ_BACKOFF_S[1])
+            continue
+        backoff = READ_BACKOFF_S[0]
         if not s["rt_started"]:  # the cycle has not written anything yet
             await asyncio.sleep(interval)
             continue
@@ -144,7 +175,7 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
         bridge.forward_messages()
         if now >= next_loop:
             next_loop += 1.0
-            stats = report.make(s, shared.hist, now)
+            stats = report.make(s, shared.hist, now, shared.stalled_reads)
             bridge.epoch += 1  # the cycle restarts its maxima for the next interval
             bridge.sync()
             if stats is not None:
@@ -164,7 +195,7 @@ arriving on a Zenoh thread does not wait behind the event loop for milliseconds.
 
 async def main(config: RobotConfig) -> int:
     """Returns the exit status: 0 when stopped by a signal, 2 for a bad config, 3 when the board
-    does not match the config."""
+    does not match the config, 4 when the real-time process died."""
     sys.setswitchinterval(GIL_SWITCH_S)
     async with Node("hwbridge", config) as node:
         try:
@@ -177,7 +208,7 @@ async def main(config: RobotConfig) -> int:
         stop_sub = fast_stop(node, bridge)
         try:
             async with asyncio.TaskGroup() as tasks:
-                # When the supervisor returns (the board refused), everything else stops too.
+                # When the supervisor returns (the board refused, the cycle died), everything else stops too.
                 cycle = tasks.create_task(supervise(config, bridge, node))
                 others = [tasks.create_task(publish(config, bridge, node)),
                           tasks.create_task(forward_io(node, bridge))]
@@ -210,6 +241,8 @@ def fast_stop(node: Node, bridge: Bridge) -> zenoh.Subscriber:
     key_expr = node.key(keys.STOP)
 
     def on_sample(sample: zenoh.Sample) -> None:
+        if not node.own_key(key_expr, str(sample.key_expr)):
+            return  # a wildcard put (icefloe/*/cmd/stop) is no command for this robot
         try:
             codec.decode(sample.payload.to_bytes(), str(sample.encoding), m.Stop, key_expr)
         except BadPayload as exc:

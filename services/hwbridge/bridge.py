@@ -34,7 +34,7 @@ from .control import (
     percentiles,
     twist_to_wheels,
 )
-from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, Shared
+from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, STATE_FIELDS, Shared
 
 MOTION_STEP_S = 0.02
 """A timed motion re-sends its targets at 50 Hz (which also feeds the deadman)."""
@@ -140,9 +140,11 @@ class Bridge:
     def kick(self) -> None:
         """Wake the cycle (SIGUSR1) so it sends a latched stop now, not at its next period."""
         pid = self.rt_pid
+        state = None if pid is None else self.shared.read_state()
         # The cycle writes its pid once its SIGUSR1 handler is in place; before that the
-        # signal would kill it, and the next period applies the stop anyway.
-        if pid is None or self.shared.read_state()["pid"] != pid:
+        # signal would kill it, and the next period applies the stop anyway (as it does when
+        # the cycle is in the middle of writing its state: None).
+        if state is None or state["pid"] != pid:
             return
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGUSR1)
@@ -179,15 +181,18 @@ class Bridge:
         """Stop the wheels; answer with `Wheels` once both measured speeds are ~0."""
         self.stop("cmd/halt")
         deadline = time.monotonic() + HALT_TIMEOUT_S
+        last = dict.fromkeys(STATE_FIELDS, 0)
         while time.monotonic() < deadline:
-            state = self.shared.read_state()
-            fresh = state["sample_ns"] > time.monotonic_ns() - 100_000_000
-            if (fresh and abs(state["speed_left"]) < HALTED_SPEED
-                    and abs(state["speed_right"]) < HALTED_SPEED):
-                return self.wheels_message(state)
+            state = self.shared.read_state()  # None: the cycle is in the middle of a write
+            if state is not None:
+                last = state
+                fresh = state["sample_ns"] > time.monotonic_ns() - 100_000_000
+                if (fresh and abs(state["speed_left"]) < HALTED_SPEED
+                        and abs(state["speed_right"]) < HALTED_SPEED):
+                    return self.wheels_message(state)
             await asyncio.sleep(0.01)
         self.log.warning("cmd/halt: wheels not measured at rest within %.0f s", HALT_TIMEOUT_S)
-        return self.wheels_message(self.shared.read_state())
+        return self.wheels_message(last)
 
     # ------------------------------------------------------------------ board I/O
 
@@ -256,7 +261,9 @@ class LoopReport:
         self._prev_t = 0.0
         self._hist = [0] * HIST_BINS
 
-    def make(self, state: dict, hist, now: float) -> m.LoopStats | None:
+    def make(self, state: dict, hist, now: float, stalled_reads: int = 0) -> m.LoopStats | None:
+        """``stalled_reads``: the bus process's own count (`Shared.stalled_reads`); the cycle's is in
+        ``state``."""
         counts = list(hist)
         prev, self._prev = self._prev, state
         delta = [c - p for c, p in zip(counts, self._hist, strict=True)]
@@ -280,5 +287,5 @@ class LoopReport:
             link_rate=(state["exchanges"] - prev["exchanges"]) / elapsed,
             crc_errors=state["crc_errors"], timeouts=state["timeouts"],
             unmatched=state["unmatched"], garbage_bytes=state["garbage_bytes"],
-            board_errors=state["board_errors"],
+            board_errors=state["board_errors"], stalled_reads=state["stalled_reads"] + stalled_reads,
         )

@@ -161,11 +161,12 @@ class Cycle:
 
     def step(self, now_ns: int) -> None:
         """Everything a period does after waking up at ``now_ns`` (CLOCK_MONOTONIC)."""
-        try:
-            left, right, fresh_ns, stop, epoch = self.shared.read_commands()
-        except TimeoutError:
+        commands = self.shared.read_commands()
+        if commands is None:  # the bus process was descheduled mid-write: stop for this period
             left = right = 0.0
-            fresh_ns, stop, epoch = 0, 1, self._epoch  # a writer died mid-write: stop
+            fresh_ns, stop, epoch = 0, 1, self._epoch
+        else:
+            left, right, fresh_ns, stop, epoch = commands
         if epoch != self._epoch:
             self._epoch = epoch
             self.period_max = self.latency_max = 0
@@ -198,10 +199,8 @@ class Cycle:
         """
         if not self.link_up or deadline_ns - now_ns < self.period_ns // KICK_GUARD_FRACTION:
             return  # no board to tell, or the period, due in a moment, tells it
-        try:
-            stop = self.shared.read_commands()[3]
-        except TimeoutError:
-            stop = 1
+        commands = self.shared.read_commands()
+        stop = 1 if commands is None else commands[3]  # mid-write: stop, as `step` does
         if not stop or self.stop_reason != STOP_NONE:
             return  # no stop latched, or the wheels are stopped already
         self.stop_reason = STOP_LATCHED
@@ -263,7 +262,7 @@ class Cycle:
             b.garbage_bytes, b.board_errors,
             b.battery_voltage, b.battery_current, self._started,
             b.battery_ns, b.button_presses, b.dip, b.late, b.lost, self.io_dropped, 0,
-            os.getpid(), int(self.mismatch), b.watchdog, self.kicks, 0,
+            os.getpid(), int(self.mismatch), b.watchdog, self.kicks, self.shared.stalled_reads, 0,
         )
         self.shared.write_state(s)
 

@@ -20,7 +20,12 @@ messages   RT process (head)       board text lines and the RT process's own
 Snapshots (commands, state) are protected by a **seqlock**: the writer makes
 the sequence number odd, writes, makes it even again; a reader copies the
 fields and retries if the number was odd or changed meanwhile. The writer never
-waits for a reader, which is what the real-time side needs. The rings are
+waits for a reader, which is what the real-time side needs. A reader gives up
+after `READ_TRIES` tries and counts it (`Shared.stalled_reads`): a writer that
+was descheduled in the middle of a write (a starved machine: the cycle without
+SCHED_FIFO) does not finish however long the reader spins, so the reader asks
+again later (the cycle at its next period, the bus process after a back-off)
+instead of taking the CPU the writer needs. The rings are
 single-producer single-consumer: the producer fills a slot, then advances its
 head; the consumer reads, then advances its tail.
 
@@ -45,7 +50,7 @@ COMMANDS = struct.Struct("<ddqqq")
 """target_left m/s, target_right m/s, fresh_ns (monotonic ns of the last motion command,
 0 = none), stop (1 = latched), stats_epoch (bumped by the bus side to restart the maxima)."""
 
-STATE = struct.Struct("<" + "q" * 6 + "d" * 6 + "q" * 12 + "d" * 3 + "q" * 12)
+STATE = struct.Struct("<" + "q" * 6 + "d" * 6 + "q" * 12 + "d" * 3 + "q" * 13)
 """See `State` for the field order."""
 
 STATE_FIELDS = (
@@ -59,7 +64,7 @@ STATE_FIELDS = (
     # board readings
     "battery_voltage", "battery_current", "rt_started",
     "battery_ns", "button_presses", "dip", "late", "lost", "io_dropped", "text_lost",
-    "pid", "mismatch", "watchdog", "kicks", "spare",
+    "pid", "mismatch", "watchdog", "kicks", "stalled_reads", "spare",
 )  # fmt: skip
 
 IO_SLOTS = 32
@@ -75,8 +80,10 @@ MSG_SLOT = struct.Struct(f"<qq{MSG_TEXT}s")
 MSG_BOARD, MSG_INFO, MSG_WARNING, MSG_ERROR = 1, 2, 3, 4
 
 _WORD = struct.Struct("<q")
-READ_TRIES = 10_000
-"""Seqlock read attempts before giving up (`Shared._read`)."""
+READ_TRIES = 100
+"""Seqlock read attempts before a read gives up for now (`Shared._read`). A write takes a few
+microseconds, so a writer that is running is done within a few tries (100 take 0.3-0.7 ms
+on the busy build machine); one that is not running does not finish sooner for being waited on."""
 
 OFF_CMD_SEQ = 0
 OFF_CMD = 8
@@ -110,6 +117,9 @@ class Shared:
         """Latency histogram counts, one 8-byte word per bin (written by the RT process only)."""
         self._state = [0] * len(STATE_FIELDS)
         self._msg_tail = 0
+        self.stalled_reads = 0
+        """Reads this side gave up on because the other side was in the middle of a write for all
+        `READ_TRIES` tries (it was descheduled mid-write), since start."""
 
     @classmethod
     def create(cls, name: str | None = None) -> Shared:
@@ -159,9 +169,9 @@ class Shared:
     def _set_word(self, offset: int, value: int) -> None:
         _WORD.pack_into(self.buf, offset, value)
 
-    def _read(self, seq_off: int, layout: struct.Struct, off: int) -> tuple:
-        # A write takes microseconds, so a few retries always suffice -- unless the writer
-        # died half-way (odd sequence forever): then give up instead of spinning at RT priority.
+    def _read(self, seq_off: int, layout: struct.Struct, off: int) -> tuple | None:
+        """A consistent copy of a snapshot, or None (counted) when every try found a write in
+        progress: the writer was descheduled (or died) half-way. Ask again later."""
         for _ in range(READ_TRIES):
             before = self._word(seq_off)
             if before & 1:
@@ -169,7 +179,8 @@ class Shared:
             values = layout.unpack_from(self.buf, off)
             if self._word(seq_off) == before:
                 return values
-        raise TimeoutError("shared memory: the writer never finished (did it die mid-write?)")
+        self.stalled_reads += 1
+        return None
 
     def _write(self, seq_off: int, layout: struct.Struct, off: int, *values: object) -> None:
         seq = self._word(seq_off)
@@ -183,8 +194,9 @@ class Shared:
                        epoch: int) -> None:
         self._write(OFF_CMD_SEQ, COMMANDS, OFF_CMD, left, right, fresh_ns, int(stop), epoch)
 
-    def read_commands(self) -> tuple[float, float, int, int, int]:
-        """(target_left, target_right, fresh_ns, stop, stats_epoch)."""
+    def read_commands(self) -> tuple[float, float, int, int, int] | None:
+        """(target_left, target_right, fresh_ns, stop, stats_epoch); None if the bus process is in
+        the middle of a write (see `_read`)."""
         return self._read(OFF_CMD_SEQ, COMMANDS, OFF_CMD)  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ io ring (bus -> RT)
@@ -215,9 +227,11 @@ class Shared:
         """Publish a full state snapshot; ``values`` in `STATE_FIELDS` order."""
         self._write(OFF_STATE_SEQ, STATE, OFF_STATE, *values)
 
-    def read_state(self) -> dict[str, float | int]:
-        """A consistent copy of the state, by field name."""
-        return dict(zip(STATE_FIELDS, self._read(OFF_STATE_SEQ, STATE, OFF_STATE), strict=True))
+    def read_state(self) -> dict[str, float | int] | None:
+        """A consistent copy of the state, by field name; None if the cycle is in the middle of a
+        write (see `_read`)."""
+        values = self._read(OFF_STATE_SEQ, STATE, OFF_STATE)
+        return None if values is None else dict(zip(STATE_FIELDS, values, strict=True))
 
     # ------------------------------------------------------------------ messages (RT -> bus)
 

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import argparse
 import functools
+import sys
 from collections.abc import Sequence
 
+from icefloe.errors import ConfigError
 from icefloe.runtime import run
 
 from .options import add_arguments, options_from
+from .viewer import display_problem, how_to_look
 
 
 def add_service_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,9 +28,19 @@ def add_service_arguments(parser: argparse.ArgumentParser) -> None:
     add_arguments(parser)
 
 
+def check_viewer(args: argparse.Namespace) -> None:
+    """A ConfigError, in one line, if no window can open here (checked before seconds of importing Rerun)."""
+    if not (args.save or args.serve) and (problem := display_problem()):
+        raise ConfigError(f"cannot open the Rerun viewer: {problem}; {how_to_look()}")
+
+
 def start(args: argparse.Namespace) -> None:
     """Run the viz service with parsed options until it ends or Ctrl-C."""
-    from .app import main  # imports Rerun (the `viz` extra)
+    check_viewer(args)
+    try:
+        from .app import main  # imports Rerun (the `viz` extra)
+    except ImportError as exc:
+        raise ConfigError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
 
     common = ["--log-level", args.log_level]
     if args.config:
@@ -37,11 +50,27 @@ def start(args: argparse.Namespace) -> None:
     run(functools.partial(main, options=options_from(args)), common, description="icefloe viz")
 
 
+def show_recording(args: argparse.Namespace) -> int:
+    """``icefloe viz FILE.mcap``: the same view of a recording (exit status)."""
+    check_viewer(args)
+    try:
+        from .playback import show_files  # imports Rerun (the `viz` extra)
+    except ImportError as exc:
+        raise ConfigError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
+    from icefloe.runtime import load_config
+
+    return show_files(args.files, load_config(args), options_from(args))
+
+
 def cli(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="icefloe viz", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     add_service_arguments(parser)
-    start(parser.parse_args(argv))
+    try:
+        start(parser.parse_args(argv))
+    except ConfigError as exc:
+        print(f"icefloe viz: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 if __name__ == "__main__":

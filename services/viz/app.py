@@ -21,6 +21,7 @@ import contextlib
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import rerun as rr
@@ -36,6 +37,7 @@ from .blueprint import blueprint
 from .decimate import Decimator
 from .logging_rr import RobotLogger
 from .options import VizOptions
+from .viewer import Viewer
 
 APP_ID = "icefloe"
 DISCOVERY_INTERVAL_S = 1.0
@@ -78,8 +80,12 @@ def world_markers(config: RobotConfig, log: logging.Logger) -> list[tuple[int, f
     return [(mk.id, mk.x, mk.y, mk.size, mk.yaw) for mk in world.markers]
 
 
-def open_recording(options: VizOptions, robots: list[str]) -> rr.RecordingStream:
-    """A Rerun recording with the sink the options ask for, and the default blueprint."""
+def open_recording(options: VizOptions, robots: list[str], run_dir: Path) -> tuple[rr.RecordingStream, Viewer | None]:
+    """A Rerun recording with the sink the options ask for, and the default blueprint; and the
+    native viewer it streams to (None with ``--save`` or ``--serve``)."""
+    viewer = None
+    if not (options.save or options.serve):  # first: without a window there is no recording to make
+        viewer = Viewer(options.grpc_port, options.memory_limit, run_dir / "rerun-viewer.log")
     rec = rr.RecordingStream(APP_ID)
     layout = blueprint(robots)
     if options.save:
@@ -90,12 +96,12 @@ def open_recording(options: VizOptions, robots: list[str]) -> rr.RecordingStream
         rr.serve_web_viewer(web_port=options.web_port, open_browser=False, connect_to=url)
         print(f"viz: web viewer at http://localhost:{options.web_port}/?url={url}\n"
               f"viz: native viewer: rerun {url}", flush=True)
-    else:
-        rec.spawn(memory_limit=options.memory_limit, default_blueprint=layout)
-    return rec
+    elif viewer is not None:
+        rec.connect_grpc(viewer.url, default_blueprint=layout)
+    return rec, viewer
 
 
-class Viewer:
+class Shown:
     """The robots being shown: one `RobotLogger` and one task per stream for each."""
 
     def __init__(self, node: Node, rec: rr.RecordingStream, tasks: asyncio.TaskGroup) -> None:
@@ -143,20 +149,41 @@ class Viewer:
             await asyncio.sleep(DISCOVERY_INTERVAL_S)
 
 
+class WindowClosed(Exception):
+    """The native viewer we started has exited: the student closed its window."""
+
+
+async def watch(window: Viewer, node: Node) -> None:
+    """End viz when the viewer's window is closed (`icefloe up` does not restart a viz that ends so)."""
+    while not window.closed():
+        await asyncio.sleep(0.5)
+    node.log.info("the viewer was closed; viz ends (`icefloe viz` opens it again)")
+    raise WindowClosed
+
+
 async def main(config: RobotConfig, options: VizOptions) -> None:
     """Show ``options.robot`` (or every robot found) until cancelled or ``options.duration`` is up."""
     robots = [options.robot] if options.robot else []
-    rec = open_recording(options, robots)
+    rec, window = await asyncio.to_thread(open_recording, options, robots, config.runtime_dir)
     try:
         async with Node("viz", config) as node:
             with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(options.duration), asyncio.TaskGroup() as tasks:
-                    viewer = Viewer(node, rec, tasks)
-                    if options.robot:
-                        viewer.add(options.robot)
-                    else:
-                        tasks.create_task(viewer.discover())
+                async with asyncio.timeout(options.duration):
+                    try:
+                        async with asyncio.TaskGroup() as tasks:
+                            shown = Shown(node, rec, tasks)
+                            if options.robot:
+                                shown.add(options.robot)
+                            else:
+                                tasks.create_task(shown.discover())
+                            if window is not None:
+                                tasks.create_task(watch(window, node))
+                    except* WindowClosed:
+                        pass
     finally:
         # Flush and close the sink even on SIGINT, so a recording ends with a complete file.
-        rec.flush()
+        try:
+            rec.flush()
+        except RuntimeError as exc:  # the viewer is gone (its window was closed): nothing left to send to
+            logging.getLogger("icefloe.viz").info("not flushed: %s", exc)
         rec.disconnect()

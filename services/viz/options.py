@@ -14,7 +14,7 @@ class VizOptions:
     robot: str | None = None
     """Follow only this robot; None = every robot that has liveliness tokens."""
     serve: bool = False
-    """Serve a web viewer (and a gRPC endpoint for native viewers) instead of spawning one."""
+    """Serve a web viewer (and a gRPC endpoint for native viewers) instead of starting one."""
     save: str | None = None
     """Record to this .rrd file instead of showing a viewer."""
     duration: float | None = None
@@ -36,7 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--web-port", type=int, default=VizOptions.web_port, metavar="PORT",
                         help=f"with --serve: the web viewer's port (default {VizOptions.web_port})")
     parser.add_argument("--grpc-port", type=int, default=VizOptions.grpc_port, metavar="PORT",
-                        help=f"with --serve: the port native viewers connect to (default {VizOptions.grpc_port})")
+                        help="where native viewers listen: the one viz opens (or finds already open), or, with "
+                             f"--serve, this process (default {VizOptions.grpc_port})")
     parser.add_argument("--memory-limit", default=VizOptions.memory_limit,
                         help="data kept in the viewer/server before the oldest is dropped, e.g. 25%% or 2GiB")
 

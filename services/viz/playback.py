@@ -41,7 +41,7 @@ def show(bag: Bag, config: RobotConfig, options: VizOptions) -> int:
     if not robots:
         which = f" of robot {options.robot!r}" if options.robot else ""
         raise BadRecording(f"{bag.files[0].path}: no icefloe keys{which} to show")
-    rec = open_recording(options, robots)
+    rec, _viewer = open_recording(options, robots, config.runtime_dir)
     markers = world_markers(config, log)
     loggers: dict[str, RobotLogger] = {}
     for robot in robots:

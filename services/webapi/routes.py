@@ -25,6 +25,7 @@ from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
 from . import params
+from .auth import owner_only
 from .params import InvalidCommand
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
@@ -258,28 +259,42 @@ class Api:
             self.streams.discard(task)
         return response
 
-    def app(self) -> web.Application:
-        app = web.Application(middlewares=[errors])
-        routes = {
+    def commands(self) -> dict[str, Handler]:
+        """Routes that change something on the robot (or, for the button, reset a count):
+        only the robot's owner may call them when the robot has access control (`auth`)."""
+        return {
             "/robot/set/velocity": self.set_velocity,
             "/robot/stop": self.stop,
-            "/robot/get/encoder": self.get_encoder,
             "/robot/hw/reset": self.hw_reset,
             "/robot/pose/reset": self.pose_reset,
-            "/motor/get/encoder": self.motor_encoder,
             "/motor/set/velocity": self.motor_velocity,
-            "/battery/get/voltage": self.voltage,
-            "/battery/get/current": self.current,
-            "/hat/dip/get": self.dip_get,
-            "/hat/button/get": self.button_get,
+            "/hat/button/get": self.button_get,  # reading resets the count: a guest would eat the presses
             "/hat/ledarray/set": self.ledarray_set,
             "/hat/screen/set": self.screen_set,
             "/hat/screen/print": self.screen_print,
             "/led/set/state": self.led_state,
             "/led/set/count": self.led_count,
+        }
+
+    def reads(self) -> dict[str, Handler]:
+        """Routes that only read: open to anyone, as the robot's state is to Zenoh's guest."""
+        return {
+            "/robot/get/encoder": self.get_encoder,
+            "/motor/get/encoder": self.motor_encoder,
+            "/battery/get/voltage": self.voltage,
+            "/battery/get/current": self.current,
+            "/hat/dip/get": self.dip_get,
             "/camera/get": self.camera,
         }
-        for path, handler in routes.items():
+
+    def app(self) -> web.Application:
+        """The routes; with access control, the commands need the robot's own user and password."""
+        middlewares = [errors]
+        zenoh = self.robot.config.zenoh
+        if zenoh.access_control:
+            middlewares.append(owner_only(self.commands(), zenoh.user, zenoh.password, self.robot.name))
+        app = web.Application(middlewares=middlewares)
+        for path, handler in {**self.commands(), **self.reads()}.items():
             app.router.add_get(path, handler)
         app.on_shutdown.append(self._end_streams)
         return app

@@ -1,0 +1,226 @@
+"""The `teleop` verb: drive a robot from the keyboard, like ROS's ``teleop_twist_keyboard``.
+
+    w / Up      forward           q  e    forward, turning left / right
+    s / Down    backward          z  c    backward, turning (as teleop_twist_keyboard's m and .)
+    a / Left    turn left
+    d / Right   turn right        + -     faster / slower (speed and turn rate, x1.25)
+    space / x   stop now          Ctrl-C, Esc or Ctrl-D: stop and quit
+
+Hold a key (or tap it again and again): the robot keeps the last motion while keys keep coming,
+sent as ``cmd/twist`` ten times a second, and stops (``cmd/stop``) when none came for
+``--hold`` seconds (0.8 s: longer than a terminal's auto-repeat delay, so holding a key drives
+smoothly). It stops at once on space, when the terminal loses focus (terminals that report
+focus: xterm, GNOME Terminal, iTerm2, kitty, Windows Terminal, tmux with ``focus-events on``),
+and when teleop ends for any reason (a key, Ctrl-C, SIGTERM, the terminal closing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import os
+import signal
+import sys
+import termios
+import time
+import tty
+from dataclasses import dataclass
+
+from ..config import RobotConfig
+from ..errors import IcefloeError
+from ..runtime import Node
+from ..schemas import keys
+from ..schemas import messages as m
+from .bus import on_bus
+from .common import add_bus_arguments, check_robot, warn
+
+MOTIONS: dict[bytes, tuple[int, int, str]] = {
+    b"w": (1, 0, "forward"), b"\x1b[A": (1, 0, "forward"),
+    b"s": (-1, 0, "backward"), b"\x1b[B": (-1, 0, "backward"),
+    b"a": (0, 1, "turn left"), b"\x1b[D": (0, 1, "turn left"),
+    b"d": (0, -1, "turn right"), b"\x1b[C": (0, -1, "turn right"),
+    b"q": (1, 1, "forward left"), b"e": (1, -1, "forward right"),
+    b"z": (-1, -1, "backward left"), b"c": (-1, 1, "backward right"),
+}
+"""Key -> (direction of v, direction of w, what it does); arrows as the terminal sends them."""
+STOP_KEYS = (b" ", b"x")
+QUIT_KEYS = (b"\x03", b"\x04", b"\x1b")
+FASTER, SLOWER = (b"+", b"="), (b"-", b"_")
+FOCUS_IN, FOCUS_OUT = b"\x1b[I", b"\x1b[O"
+FOCUS_REPORTING = ("\x1b[?1004h", "\x1b[?1004l")
+"""Ask the terminal to report focus changes (xterm's mode 1004), and stop asking."""
+STEP = 1.25
+
+
+@dataclass
+class Drive:
+    """What the keys ask for: pure logic, tested without a terminal."""
+
+    speed: float
+    """m/s for a forward key."""
+    turn: float
+    """rad/s for a turn key."""
+    max_speed: float
+    max_turn: float
+    hold: float
+    v: float = 0.0
+    w: float = 0.0
+    doing: str = "stopped"
+    last_key: float = 0.0
+
+    @property
+    def moving(self) -> bool:
+        return self.v != 0.0 or self.w != 0.0
+
+    def key(self, key: bytes, now: float) -> str:
+        """Apply one key; returns "move", "stop", "quit" or "" (nothing to send)."""
+        if key in QUIT_KEYS:
+            return "quit"
+        if key in STOP_KEYS or key == FOCUS_OUT:
+            self.stop("stopped" if key != FOCUS_OUT else "stopped: the terminal lost focus")
+            return "stop"
+        if key in FASTER or key in SLOWER:
+            factor = STEP if key in FASTER else 1 / STEP
+            self.speed = min(self.speed * factor, self.max_speed)
+            self.turn = min(self.turn * factor, self.max_turn)
+            if self.moving:  # the motion under way changes speed too
+                self.v, self.w = (self.speed if self.v > 0 else -self.speed if self.v < 0 else 0.0,
+                                  self.turn if self.w > 0 else -self.turn if self.w < 0 else 0.0)
+                self.last_key = now
+                return "move"
+            return ""
+        if key in MOTIONS:
+            dv, dw, self.doing = MOTIONS[key]
+            self.v, self.w = dv * self.speed, dw * self.turn
+            self.last_key = now
+            return "move"
+        return ""
+
+    def expired(self, now: float) -> bool:
+        """No key for `hold` s while moving: the deadman. Stops the motion and says so."""
+        if self.moving and now - self.last_key > self.hold:
+            self.stop(f"stopped: no key for {self.hold:g} s")
+            return True
+        return False
+
+    def stop(self, why: str) -> None:
+        self.v = self.w = 0.0
+        self.doing = why
+
+    def line(self) -> str:
+        return (f"v {self.v:+.2f} m/s  w {self.w:+.2f} rad/s  {self.doing:<34} "
+                f"(speed {self.speed:.2f} m/s, turn {self.turn:.2f} rad/s)")
+
+
+def split_keys(data: bytes) -> list[bytes]:
+    """The keys in one read from the terminal: escape sequences (arrows, focus) kept whole."""
+    out, i = [], 0
+    while i < len(data):
+        if data[i:i + 2] == b"\x1b[" and i + 2 < len(data):
+            out.append(data[i:i + 3])
+            i += 3
+        else:
+            out.append(data[i:i + 1])
+            i += 1
+    return out
+
+
+async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
+    fd = sys.stdin.fileno()
+    if not os.isatty(fd):
+        raise IcefloeError("teleop reads keys from a terminal: run it in one (its input is not a terminal)")
+    rim = config.hwbridge.max_wheel_speed
+    drive = Drive(speed=min(args.speed, rim), turn=min(args.turn, 2 * rim / config.geometry.track),
+                  max_speed=rim, max_turn=2 * rim / config.geometry.track, hold=args.hold)
+    robot = args.robot or config.name
+    async with Node("teleop", config, retry=False) as node:
+        if problem := check_robot(await node.alive("*"), robot):
+            warn(problem)
+        twist, stop = node.publisher(keys.TWIST), node.publisher(keys.STOP)
+        pose = node.subscribe(keys.ODOM_POSE, robot=robot)
+        print(__doc__.split("\n\n")[1], flush=True)  # the key table
+        print(f"driving {robot!r}; hold a key to drive (stops {args.hold:g} s after the last one)", flush=True)
+        keys_in: asyncio.Queue[bytes] = asyncio.Queue()
+        loop = asyncio.get_running_loop()
+        saved = termios.tcgetattr(fd)
+        tty.setcbreak(fd)  # keys one by one, no echo; Ctrl-C still interrupts
+        sys.stdout.write(FOCUS_REPORTING[0])
+
+        def readable() -> None:
+            data = os.read(fd, 64)
+            for key in split_keys(data) if data else [b"\x04"]:  # end of input: as Ctrl-D
+                keys_in.put_nowait(key)
+
+        loop.add_reader(fd, readable)
+        quit_ = asyncio.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            loop.add_signal_handler(sig, quit_.set)
+        try:
+            await drive_loop(drive, keys_in, quit_, twist, stop, pose, 1.0 / args.rate)
+        finally:
+            stop.put(m.Stop())  # whatever ended teleop: the wheels stop
+            loop.remove_reader(fd)
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                loop.remove_signal_handler(sig)
+            with contextlib.suppress(OSError):
+                sys.stdout.write(FOCUS_REPORTING[1] + "\r\x1b[K" + "stopped; bye\n")
+                sys.stdout.flush()
+                termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+            await asyncio.sleep(0.2)  # the stop leaves before the session closes
+    return 0
+
+
+async def drive_loop(drive: Drive, keys_in: asyncio.Queue[bytes], quit_: asyncio.Event, twist, stop, pose,
+                     period: float) -> None:  # type: ignore[no-untyped-def]
+    """Keys in, twists out, every ``period`` s while moving; returns on a quit key or signal."""
+    latest: m.Pose | None = None
+
+    async def follow_pose() -> None:
+        nonlocal latest
+        async for p in pose:
+            latest = p
+
+    poses = asyncio.create_task(follow_pose())
+    shown = ""
+    try:
+        next_send = 0.0
+        while not quit_.is_set():
+            with contextlib.suppress(TimeoutError):
+                key = await asyncio.wait_for(keys_in.get(), period / 2)
+                now = time.monotonic()
+                what = drive.key(key, now)
+                if what == "quit":
+                    return
+                if what == "stop":
+                    stop.put(m.Stop())
+                if what == "move":
+                    next_send = 0.0  # at once
+            now = time.monotonic()
+            if drive.expired(now):
+                stop.put(m.Stop())
+            if drive.moving and now >= next_send:
+                twist.put(m.Twist(v=drive.v, w=drive.w))
+                next_send = now + period
+            where = f"  x {latest.x:+.2f} y {latest.y:+.2f} m" if latest else ""
+            if (line := drive.line() + where) != shown:  # only what changed: a terminal over Wi-Fi is slow
+                sys.stdout.write("\r" + line + "\x1b[K")
+                sys.stdout.flush()
+                shown = line
+    finally:
+        poses.cancel()
+
+
+def register(verbs: argparse._SubParsersAction) -> None:
+    p = verbs.add_parser("teleop", help="drive a robot from the keyboard (arrows/WASD, space stops)",
+                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_bus_arguments(p)
+    p.add_argument("--speed", type=float, default=0.15, metavar="M/S",
+                   help="forward speed to start with, m/s (default 0.15; at most the robot's max_wheel_speed)")
+    p.add_argument("--turn", type=float, default=1.0, metavar="RAD/S",
+                   help="turn rate to start with, rad/s (default 1.0)")
+    p.add_argument("--hold", type=float, default=0.8, metavar="S",
+                   help="stop when no key came for this long, s (default 0.8)")
+    p.add_argument("--rate", type=float, default=10.0, metavar="HZ",
+                   help="send cmd/twist this often while driving (default 10; the robot's deadman is 0.5 s)")
+    p.set_defaults(run=on_bus(teleop))
