@@ -248,3 +248,35 @@ async def test_the_students_snippet_reads_a_recording(tmp_path: Path) -> None:
     poses = sum(1 for key, _, _ in sent if key.endswith("odom/pose"))
     sightings = sum(len(msg.landmarks) for key, msg, _ in sent if key.endswith("camera/landmarks"))
     assert out.strip() == f"{poses} poses, {sightings} landmark sightings" and sightings > 0
+
+
+async def test_under_access_control_a_guest_records_and_only_the_owner_replays(make_robot) -> None:
+    robot = make_robot(access_control=True)
+    guest = robot.tmp / "guest.toml"  # a laptop's config with no credentials: the read-only guest
+    guest.write_text(f'extends = "sim"\nname = "{robot.name}"\nrun_dir = "{robot.tmp}/guest-run"\n'
+                     f'[zenoh]\nconnect = ["tcp/127.0.0.1:{robot.port}"]\n')
+    out = robot.tmp / "guest.mcap"
+    recorder = Proc("record", [*ICEFLOE, "record", "odom/pose", "--duration", "2", "-o", str(out),
+                               "--config", str(guest)], robot.tmp / "record.log", robot.env)
+    robot.procs.append(recorder)
+    seen: list = []
+    async with robot.node("owner") as node:  # the robot's config: its owner's credentials
+        await wait_for(lambda: "recording" in recorder.output, timeout=30)
+        await publish(node, DemoRobot(robot.config, ()), duration=2.5)
+        assert recorder.popen.wait(10) == 0, recorder.output
+        assert "read-only user" in recorder.output
+        recorded = sum(1 for _ in Bag([out]).entries())
+        assert recorded > 20
+        spy = asyncio.create_task(collect(node.subscribe_raw(f"icefloe/{robot.name}/**"), seen))
+        await asyncio.sleep(0.3)
+        # The guest's messages would be dropped by the router: the replay says so and sends nothing.
+        status, _, err = await icefloe("replay", str(out), "--config", str(guest))
+        assert status == 2 and "the router does not take messages for robot" in err, err
+        # The owner may publish under the robot's own name only.
+        status, _, err = await icefloe("replay", str(out), "--robot", "not-mine", "--config", str(robot.config_path))
+        assert status == 2 and "robot not-mine" in err, err
+        assert not [s for s in seen if not s.key.endswith("/log")], "nothing may arrive"
+        status, _, err = await icefloe("replay", str(out), "--config", str(robot.config_path))
+        assert status == 0, err
+        await wait_for(lambda: len([s for s in seen if s.key.endswith("/odom/pose")]) == recorded)
+        spy.cancel()

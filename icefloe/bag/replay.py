@@ -11,6 +11,12 @@ Safety: a recording with commands (``cmd/*``) is not replayed onto a robot that 
 ``hwbridge`` holds a liveliness token) unless ``allow_commands``: recorded commands would move
 real wheels. Replay under another name (``robot``) or leave them out (``exclude``).
 
+Access control (docs/lab.md): a router with it passes on messages under ``icefloe/<robot>/`` only
+from that robot's owner (its credentials), and drops the others without a word. So before the
+first message the replay asks the router, from a second session, whether it took the replay's
+liveliness token for each robot (the owner's rules allow the token and the messages, or neither),
+and refuses in one line if not: a replay that reaches nobody is not silently "done".
+
 The replay holds ``icefloe/<robot>/alive/replay`` for each robot it replays, so tools that find
 robots by their liveliness tokens (``icefloe status``, viz) see it. With ``clock_hz`` it
 publishes the recording's time on ``icefloe/<robot>/clock`` (`messages.Clock`).
@@ -28,7 +34,7 @@ from dataclasses import dataclass, field
 import zenoh
 
 from ..errors import BadRecording, IcefloeError
-from ..runtime import LimitedLog, Node
+from ..runtime import LimitedLog, Node, open_session
 from ..schemas import codec, keys
 from ..schemas import messages as m
 from .channels import ChannelPlan, payload
@@ -40,6 +46,8 @@ with the subscribers, so the first messages are not sent to nobody."""
 END_DELAY_S = 0.5
 """After the last message, before the session closes: Zenoh sends what is still queued (closing
 the session drops it; large samples, camera images, are the last to go)."""
+ALLOWED_TIMEOUT_S = 3.0
+"""How long the router may take to show the replay's liveliness token to another session."""
 
 
 @dataclass(frozen=True)
@@ -119,6 +127,31 @@ async def check_commands(node: Node, channels: Sequence[ChannelPlan], options: R
             "leave them out (--exclude 'cmd/*'), or send them anyway (--allow-commands).")
 
 
+async def check_allowed(node: Node, robots: Sequence[str]) -> None:
+    """Refuse (IcefloeError) unless the router passes on what this session publishes for ``robots``."""
+    missing = list(robots)
+    session = await open_session(node.config, log=node.log, retry=False)
+    try:
+        deadline = time.monotonic() + ALLOWED_TIMEOUT_S
+        while missing and time.monotonic() < deadline:
+            for robot in list(missing):
+                token = keys.alive_key(robot, "replay")
+                replies = await asyncio.to_thread(lambda t=token: list(session.liveliness().get(t, timeout=1.0)))
+                if any(r.ok is not None for r in replies):
+                    missing.remove(robot)
+            if missing:
+                await asyncio.sleep(0.1)
+    finally:
+        session.close()
+    if missing:
+        names = ", ".join(missing)
+        raise IcefloeError(
+            f"not replaying: the router does not take messages for robot {names} from this session "
+            f"(access control: only a robot's owner may publish under its name). Replay with that robot's "
+            f"credentials (--credentials FILE), under the name of a robot you own (--robot NAME), or onto "
+            f"a bus of your own (icefloe up on your laptop).")
+
+
 class Publishers:
     """One Zenoh publisher per replayed key, with the priority its topic has on a live robot.
 
@@ -166,7 +199,7 @@ async def replay(node: Node, bag: Bag, options: ReplayOptions,
     wanted = set(channels)
     warn = LimitedLog(node.log)
     try:
-        await asyncio.sleep(START_DELAY_S)
+        await asyncio.gather(check_allowed(node, robots), asyncio.sleep(START_DELAY_S))
         clock = Clock(node.session, robots, options)
         helpers = [asyncio.create_task(clock.run())] if options.clock_hz > 0 else []
         if progress is not None:
