@@ -25,7 +25,7 @@ from ..config import RobotConfig
 from ..errors import BadRecording, IcefloeError
 from ..runtime import Node, run_async
 from ..schemas import keys
-from .common import add_bus_arguments, bus_config, resolve_key
+from .common import add_bus_arguments, bus_config, key_names, resolve_key
 
 RECORD_QUEUE = 20_000
 """Samples the recorder holds between its callback and the file; beyond that the oldest are dropped
@@ -319,8 +319,9 @@ def register(verbs: argparse._SubParsersAction) -> None:
                          description="Record a robot's bus into an MCAP file: one channel per key, JSON Schema + "
                          "JSON (Foxglove opens it as it is). Runs at low priority; Ctrl-C closes a valid file.")
     add_bus_arguments(p, robot_help="the robot to record (default: the config's)")
-    p.add_argument("keys", nargs="*", metavar="KEY",
-                   help="key-table names (hw/wheels), full keys or key expressions (default: every key of the robot)")
+    keys_arg = p.add_argument("keys", nargs="*", metavar="KEY", help="key-table names (hw/wheels), full keys or "
+                              "key expressions (default: every key of the robot)")
+    keys_arg.completer = key_names  # type: ignore[attr-defined]
     p.add_argument("-o", "--output", metavar="FILE.mcap", help="the file (default: <robot>-<date>-<time>.mcap)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--exclude", action="append", default=[], metavar="KEY",
@@ -341,7 +342,9 @@ def register(verbs: argparse._SubParsersAction) -> None:
     p.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
     p.add_argument("--start", type=float, default=0.0, metavar="S", help="begin S seconds into the recording")
     p.add_argument("--end", type=float, metavar="S", help="stop S seconds into the recording")
-    p.add_argument("--keys", nargs="+", metavar="KEY", help="only these keys (hw/wheels camera/landmarks, cmd/*)")
+    keys_arg = p.add_argument("--keys", nargs="+", metavar="KEY",
+                              help="only these keys (hw/wheels camera/landmarks, cmd/*)")
+    keys_arg.completer = key_names  # type: ignore[attr-defined]
     p.add_argument("--exclude", action="append", metavar="KEY", help="leave out these keys (repeatable)")
     p.add_argument("--clock", type=float, nargs="?", const=100.0, default=0.0, metavar="HZ",
                    help="publish the recording's time on <robot>/clock (default 100 Hz)")
@@ -349,13 +352,18 @@ def register(verbs: argparse._SubParsersAction) -> None:
                    help="replay cmd/* even when the robot is live (its hwbridge runs): it will move")
     p.set_defaults(run=on_bus(replay_verb))
 
-    p = verbs.add_parser("bag", help="look at a recording: bag info FILE")
-    bag_verbs = p.add_subparsers(dest="bag_verb", required=True, metavar="VERB")
-    q = bag_verbs.add_parser("info", help="keys, counts, rates, duration and size of a recording")
-    q.add_argument("files", nargs="+", metavar="FILE.mcap")
+    p = verbs.add_parser("bag", help="look at a recording: bag info FILE",
+                         description="Look at an MCAP recording without a bus.")
+    bag_verbs = p.add_subparsers(dest="bag_verb", required=True, metavar="VERB", help="info")
+    q = bag_verbs.add_parser("info", help="keys, counts, rates, duration and size of a recording",
+                             description="Keys, counts, rates, duration and size of a recording (a truncated "
+                             "one is read up to its last whole chunk, with one warning).")
+    q.add_argument("files", nargs="+", metavar="FILE.mcap", help="the recording (several: a split one, in order)")
     q.set_defaults(run=guarded(info))
 
-    p = verbs.add_parser("export", help="a recording as CSV files, one per key")
-    p.add_argument("files", nargs="+", metavar="FILE.mcap")
+    p = verbs.add_parser("export", help="a recording as CSV files, one per key",
+                         description="A recording as CSV files, one per key (log_time, then the message's fields; "
+                         "camera images as JPEG files beside them), for a homework without icefloe running.")
+    p.add_argument("files", nargs="+", metavar="FILE.mcap", help="the recording (several: a split one, in order)")
     p.add_argument("--csv", required=True, metavar="DIR", help="write one CSV per key into DIR")
     p.set_defaults(run=guarded(export))
