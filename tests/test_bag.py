@@ -23,7 +23,7 @@ from icefloe import config as config_mod
 from icefloe.bag import Bag, BagWriter, channels
 from icefloe.bag.export import to_csv
 from icefloe.bag.replay import ReplayOptions, choose
-from icefloe.errors import BadRecording
+from icefloe.errors import BadRecording, IcefloeError
 from icefloe.schemas import codec, export, keys
 from icefloe.schemas import messages as m
 from icefloe.services.viz.demo import RATES_HZ, DemoRobot
@@ -218,6 +218,9 @@ def test_another_tools_file_is_replayed_key_by_key_as_raw_bytes_or_refused(tmp_p
         ("", "raw", "", True)]
     assert "unknown schema nav_msgs/msg/Odometry (ros2msg, cdr): replayed as raw bytes" in plans["/odom"].note
     assert "'/a/*/b' cannot be a Zenoh key" in plans["/a/*/b"].note
+    for name in ("*", "a/b", "**", ""):  # replay publishes under the name: never a wildcard
+        with pytest.raises(IcefloeError, match="is not a robot name"):
+            Bag([tmp_path / "ros.mcap"], robot=name)
     # Without --robot, another tool's topics become keys of their own.
     assert Bag([tmp_path / "ros.mcap"]).channels()[0].key == "odom"
     # A refused channel has no key: it is reported when everything is replayed, not when keys are chosen.

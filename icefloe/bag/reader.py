@@ -23,7 +23,7 @@ from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 
-from ..errors import BadRecording
+from ..errors import BadRecording, IcefloeError
 from .channels import ChannelPlan, plan
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -65,6 +65,9 @@ class Bag:
     def __init__(self, paths: Sequence[str | os.PathLike[str]], robot: str | None = None) -> None:
         if not paths:
             raise BadRecording("no recording given")
+        if robot is not None and (not robot or any(c in robot for c in "/*$#? ")):
+            # The name goes into the keys replay publishes on: a wildcard would reach every robot.
+            raise IcefloeError(f"--robot {robot!r} is not a robot name (one word, no wildcards)")
         self.files = [FileState(Path(p), 0) for p in paths]
         self.robot = robot
         self._plans: dict[tuple[Path, int], ChannelPlan] = {}
