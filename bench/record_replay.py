@@ -41,7 +41,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from common import free_port, robot_config
+from common import free_port, read_state, robot_config
 
 ROOT = Path(__file__).resolve().parent.parent
 ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
@@ -86,9 +86,9 @@ def figures(hist: list[int], cycles: int, overruns: int) -> dict:
 
 def hist_window(shared, seconds: float) -> dict:
     """hwbridge's wake-up figures over ``seconds``, from its shared-memory histogram."""
-    state0, hist0 = shared.read_state(), list(shared.hist)
+    state0, hist0 = read_state(shared), list(shared.hist)
     time.sleep(seconds)
-    state1, hist1 = shared.read_state(), list(shared.hist)
+    state1, hist1 = read_state(shared), list(shared.hist)
     return figures([b - a for a, b in zip(hist0, hist1, strict=True)], state1["cycles"] - state0["cycles"],
                    state1["overruns"] - state0["overruns"])
 
