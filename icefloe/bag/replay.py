@@ -17,8 +17,9 @@ first message the replay asks the router, from a second session, whether it took
 liveliness token for each robot (the owner's rules allow the token and the messages, or neither),
 and refuses in one line if not: a replay that reaches nobody is not silently "done".
 
-The replay holds ``icefloe/<robot>/alive/replay`` for each robot it replays, so tools that find
-robots by their liveliness tokens (``icefloe status``, viz) see it. With ``clock_hz`` it
+The replay holds ``icefloe/<robot>/alive/replay-<pid>`` for each robot it replays, so tools that
+find robots by their liveliness tokens (``icefloe status``, viz) see it; the pid tells two replays
+apart (and the access check below asks for this replay's own token). With ``clock_hz`` it
 publishes the recording's time on ``icefloe/<robot>/clock`` (`messages.Clock`).
 """
 
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -127,6 +129,11 @@ async def check_commands(node: Node, channels: Sequence[ChannelPlan], options: R
             "leave them out (--exclude 'cmd/*'), or send them anyway (--allow-commands).")
 
 
+def replay_service() -> str:
+    """The service name of this replay's liveliness tokens: ``replay-<pid>``."""
+    return f"replay-{os.getpid()}"
+
+
 async def check_allowed(node: Node, robots: Sequence[str]) -> None:
     """Refuse (IcefloeError) unless the router passes on what this session publishes for ``robots``."""
     missing = list(robots)
@@ -135,7 +142,7 @@ async def check_allowed(node: Node, robots: Sequence[str]) -> None:
         deadline = time.monotonic() + ALLOWED_TIMEOUT_S
         while missing and time.monotonic() < deadline:
             for robot in list(missing):
-                token = keys.alive_key(robot, "replay")
+                token = keys.alive_key(robot, replay_service())
                 replies = await asyncio.to_thread(lambda t=token: list(session.liveliness().get(t, timeout=1.0)))
                 if any(r.ok is not None for r in replies):
                     missing.remove(robot)
@@ -193,7 +200,7 @@ async def replay(node: Node, bag: Bag, options: ReplayOptions,
         raise BadRecording(f"{bag.files[0].path}: nothing to replay (no channel left after the key selection)")
     await check_commands(node, channels, options)
     robots = sorted({keys.split(c.key)[0] for c in channels if c.key.startswith(keys.PREFIX + "/")})
-    tokens = [node.session.liveliness().declare_token(keys.alive_key(r, "replay")) for r in robots]
+    tokens = [node.session.liveliness().declare_token(keys.alive_key(r, replay_service())) for r in robots]
     publishers = Publishers(node.session, channels)
     stats = ReplayStats()
     wanted = set(channels)
