@@ -7,6 +7,7 @@ rates) or files written with `BagWriter`; the whole simulated stack is in test_r
 from __future__ import annotations
 
 import asyncio
+import os
 import re
 import signal
 import subprocess
@@ -33,10 +34,10 @@ def cli(robot: Robot, *args: str, name: str) -> Proc:
     return proc
 
 
-async def icefloe(*args: str, timeout: float = 60.0) -> tuple[int, str, str]:
+async def icefloe(*args: str, timeout: float = 60.0, env: dict[str, str] | None = None) -> tuple[int, str, str]:
     """Run ``icefloe <args>`` to its end without blocking the test's event loop: (status, stdout, stderr)."""
     proc = await asyncio.create_subprocess_exec(*ICEFLOE, *args, cwd=ROOT, stdout=subprocess.PIPE,
-                                                stderr=subprocess.PIPE)
+                                                stderr=subprocess.PIPE, env=env)
     out, err = await asyncio.wait_for(proc.communicate(), timeout)
     return proc.returncode or 0, out.decode(), err.decode()
 
@@ -221,6 +222,9 @@ async def test_bag_info_export_and_viz_read_a_recording(tmp_path: Path) -> None:
     assert len(shown["/robots/sim/camera/image"]["stamp"]) == 4 and shown["/robots/sim/oled"]["stamp"]
     status, _, err = await icefloe("bag", "info", str(tmp_path / "demo.rrd"))
     assert status == 2 and "demo.rrd: not an MCAP file" in err
+    headless = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    status, _, err = await icefloe("viz", str(recording), env=headless)  # no window to open: one line, what to do
+    assert status == 2 and "no display here" in err and "--save FILE.rrd" in err and "Traceback" not in err, err
 
 
 def docs_snippet(doc: Path, after: str) -> str:

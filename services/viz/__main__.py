@@ -28,10 +28,10 @@ def add_service_arguments(parser: argparse.ArgumentParser) -> None:
     add_arguments(parser)
 
 
-def check_viewer(args: argparse.Namespace) -> None:
+def check_viewer(args: argparse.Namespace, how: str = "") -> None:
     """A ConfigError, in one line, if no window can open here (checked before seconds of importing Rerun)."""
     if not (args.save or args.serve) and (problem := display_problem()):
-        raise ConfigError(f"cannot open the Rerun viewer: {problem}; {how_to_look()}")
+        raise ConfigError(f"cannot open the Rerun viewer: {problem}; {how or how_to_look()}")
 
 
 def start(args: argparse.Namespace) -> None:
@@ -52,7 +52,8 @@ def start(args: argparse.Namespace) -> None:
 
 def show_recording(args: argparse.Namespace) -> int:
     """``icefloe viz FILE.mcap``: the same view of a recording (exit status)."""
-    check_viewer(args)
+    check_viewer(args, "add --save FILE.rrd and open that on a machine with a screen (rerun FILE.rrd), "
+                       "or --serve and open http://localhost:9090 in a browser")
     try:
         from .playback import show_files  # imports Rerun (the `viz` extra)
     except ImportError as exc:
