@@ -54,6 +54,8 @@ T = TypeVar("T")
 CONNECT_TIMEOUT = 1.0
 """How long `AsyncRobot.open` retries a router that does not answer, by default, s: long enough
 for a router that is starting, short enough that a script run without a robot says so at once."""
+WAITING_NOTICE_S = 30.0
+"""How often a program waiting for its router says so, s (the first time after 1 s)."""
 
 
 class Encoders(NamedTuple):
@@ -418,17 +420,24 @@ class AsyncRobot:
         endpoints = ", ".join(self.config.zenoh.connect)
         if connect_timeout is None:
             connect_timeout = min(self.timeout, CONNECT_TIMEOUT)
-        deadline = time.monotonic() + connect_timeout
+        start = time.monotonic()
+        deadline, notice_at = start + connect_timeout, start + 1.0
         while True:  # the router may be starting (robot just booted): retry until the deadline
             try:
                 probe = await open_session(self.config, retry=False)
                 probe.close()
                 break
             except NotReachable:
-                if time.monotonic() > deadline:
+                now = time.monotonic()
+                if now > deadline:
                     why = why_unreachable(self.config, self.config.zenoh.connect)
                     raise NotReachable(f"robot {self.name!r}: no Zenoh router answers at {endpoints} "
                                        f"within {connect_timeout} s: {why}") from None
+                if now >= notice_at:  # a service waiting for good says so, now and then
+                    notice_at = now + WAITING_NOTICE_S
+                    logging.getLogger("icefloe").warning(
+                        "waiting for the Zenoh router of robot %r at %s: %s", self.name, endpoints,
+                        why_unreachable(self.config, self.config.zenoh.connect))
                 await asyncio.sleep(0.2)
         await self.node.__aenter__()  # the router answers: this opens at once
         self._wheels = self.node.publisher(keys.WHEELS_CMD)
