@@ -504,6 +504,19 @@ class Log(Message):
     text: str
 
 
+class Clock(Message):
+    """``clock``: the time of a recording being replayed (``icefloe replay --clock``).
+
+    A service that needs "now" in robot time (rather than the stamps of what it receives) can
+    follow this while a recording is replayed, as ROS nodes follow ``/clock``.
+    """
+
+    stamp: int
+    """The recording's time at the play head, ns since the epoch (the receive times in the file)."""
+    rate: float = 1.0
+    """Recorded seconds per wall-clock second."""
+
+
 class RobotInfo(Message):
     """``info`` query answer: what this robot is."""
 
