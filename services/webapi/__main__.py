@@ -58,7 +58,7 @@ async def serve(robot: AsyncRobot) -> None:
         await api.follow()  # runs until SIGINT/SIGTERM cancels us
     finally:
         with contextlib.suppress(Exception):
-            await robot.stop()  # whatever a client asked for, the robot stops with us
+            await robot.stop(confirm=False)  # whatever a client asked for, the robot stops with us
         await asyncio.shield(runner.cleanup())
 
 

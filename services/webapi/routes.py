@@ -21,7 +21,7 @@ from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
 
 from icefloe.client import AsyncRobot
-from icefloe.errors import NotReachable
+from icefloe.errors import NotConfirmed, NotReachable
 from icefloe.logs import LimitedLog, printable
 from icefloe.runtime import Node
 from icefloe.schemas import keys
@@ -65,6 +65,9 @@ async def errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     except NotReachable as exc:
         request.app[LIMITED].warning("not reachable", "%s: %s", request.rel_url, exc)
         return error(503, f"robot not answering: {exc}")
+    except NotConfirmed as exc:
+        request.app[LIMITED].warning("not confirmed", "%s: %s", request.rel_url, exc)
+        return error(503, f"stop not confirmed: {exc}")
 
 
 class ServerLog(logging.LoggerAdapter):
@@ -178,6 +181,7 @@ class Api:
         return self.state()
 
     async def stop(self, request: web.Request) -> web.Response:
+        """Answers once hwbridge has confirmed the stop: the board runs zero duty."""
         self.demand = [0.0, 0.0]
         await self.robot.stop()
         return self.state()
