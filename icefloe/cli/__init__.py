@@ -8,6 +8,7 @@
     schemas.py     schemas                             the JSON Schemas of the messages
     viz.py         viz                                 the Rerun view of robots
     gateware.py    gateware build, pins                the icoBoard's FPGA design
+    scaffold.py    new-service                         a service of your own, ready to run and test
     completion.py  completion                          shell completion (argcomplete)
 
 A verb module has a ``register(verbs)`` function that adds its sub-parsers, each with
@@ -27,7 +28,7 @@ import argcomplete
 
 from ..errors import IcefloeError
 
-VERB_MODULES = ("robot", "bus", "introspect", "teleop", "viz", "schemas", "gateware", "completion")
+VERB_MODULES = ("robot", "bus", "introspect", "teleop", "viz", "schemas", "gateware", "scaffold", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\
