@@ -25,6 +25,9 @@ from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
 from . import params
+from .bus import Bridge, Caller, render
+from .fanout import Hub
+from .pages import Pages
 from .params import InvalidCommand
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
@@ -81,6 +84,15 @@ class Api:
         self._screen = self.node.publisher(keys.BOARD_SCREEN)
         self._ledarray = self.node.publisher(keys.LEDARRAY)
         self._leds = self.node.publisher(keys.LEDS)
+        self.hub = Hub(self.node.session, render)
+        """The bus streams of the HTTP bridge (`bus`), shared by its clients."""
+        self._anyone = Caller("", self.node.session, self.hub)
+        self.bridge = Bridge(robot.name, self.caller, query_timeout=robot.timeout)
+        self.pages = Pages(self)
+
+    def caller(self, request: web.Request) -> Caller:
+        """Who an HTTP bridge request is from (on a robot without access control: anyone)."""
+        return self._anyone
 
     async def follow(self) -> None:
         """Keep the DIP switch and count S4 presses (run as a task)."""
@@ -281,9 +293,13 @@ class Api:
         }
         for path, handler in routes.items():
             app.router.add_get(path, handler)
+        self.bridge.routes(app)
+        self.pages.routes(app)
         app.on_shutdown.append(self._end_streams)
         return app
 
     async def _end_streams(self, app: web.Application) -> None:
         for task in list(self.streams):
             task.cancel()
+        await self.bridge.close()
+        self.hub.close()
