@@ -5,6 +5,7 @@ cd "$(dirname "$0")/.."
 . deploy/setup.sh
 ensure_venv dev
 ensure_apt Xvfb xvfb mesa-vulkan-drivers   # a display for the Rerun viewer tests and the screenshot
+ensure_apt chromium chromium   # a real browser for the robot's page (tests/test_webapi_page.py, Playwright drives it)
 echo "== ruff"
 .venv/bin/ruff check .
 echo "== pytest"

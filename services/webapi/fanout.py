@@ -146,12 +146,14 @@ class Channel:
     """One key expression followed on the bus, shared by every reader of it.
 
     ``liveliness``: follow the liveliness tokens under the expression too (``alive/<service>``
-    appearing is a PUT, going away a DELETE), with the tokens alive now first.
+    appearing is a PUT, going away a DELETE), with the tokens alive now first. ``history``:
+    keep the last samples, and give them to each new reader first (the log's last lines).
     """
 
     def __init__(self, session: zenoh.Session, key_expr: str, render: Render, *,
-                 samples: bool = True, liveliness: bool = False) -> None:
+                 samples: bool = True, liveliness: bool = False, history: int = 0) -> None:
         self.key_expr = key_expr
+        self.history: deque[Rendered] = deque(maxlen=history)
         self.readers: set[Reader] = set()
         self.latest: dict[str, Rendered] = {}
         """The newest sample of each key, for GET (only for a concrete key expression)."""
@@ -202,12 +204,16 @@ class Channel:
                 if self._keep_latest:
                     self.latest[rendered.key] = rendered
                     self.arrived.set()
+                if self.history.maxlen:
+                    self.history.append(rendered)
                 for reader in self.readers:
                     reader.offer(rendered)
             await asyncio.sleep(0)  # let the readers' writers run between bursts
 
     def reader(self, rate: float | None = None) -> Reader:
         reader = Reader(self, rate)
+        for sample in self.history:
+            reader.offer(sample)
         self.readers.add(reader)
         self.used = time.monotonic()
         return reader
@@ -241,6 +247,8 @@ class Hub:
         self.max_channels = max_channels
         self.idle_s = idle_s
         self.channels: dict[tuple[str, bool], Channel] = {}
+        self.pinned: set[tuple[str, bool]] = set()
+        """Channels kept open for good (`pin`)."""
         self._janitor: asyncio.Task[None] | None = None
         self._warn = LimitedLog(log)
 
@@ -261,13 +269,20 @@ class Hub:
         channel.used = time.monotonic()
         return channel
 
+    def pin(self, key_expr: str, history: int) -> Channel:
+        """Follow ``key_expr`` from now on for good, keeping its last ``history`` samples (so a page
+        opened later still shows the last log lines)."""
+        channel = self.channels[(key_expr, False)] = Channel(self.session, key_expr, self.render, history=history)
+        self.pinned.add((key_expr, False))
+        return channel
+
     def readers(self) -> int:
         return sum(len(c.readers) for c in self.channels.values())
 
     def _close_idle(self) -> None:
         now = time.monotonic()
         for key, channel in list(self.channels.items()):
-            if not channel.readers and now - channel.used > self.idle_s:
+            if not channel.readers and now - channel.used > self.idle_s and key not in self.pinned:
                 channel.close()
                 del self.channels[key]
 

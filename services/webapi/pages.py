@@ -162,11 +162,9 @@ class Pages:
         """Check every field first (nothing is sent if one is bad), then set; what was done."""
         done: list[str] = []
         mask = None
-        if form.get("led", "").strip():
-            mask = params.integer(form, "led", "Bad value", 0, 0xFFFF, any_base=True)
-            if not form["led"].strip().lower().startswith(("0x", "0b")):
-                mask = params.integer({"led": "0x" + form["led"].strip()}, "led", "Bad value", 0, 0xFFFF,
-                                      any_base=True)  # the old form took hex without 0x
+        if text := form.get("led", "").strip():
+            hex_text = text if text.lower().startswith(("0x", "0b")) else "0x" + text  # the old form: hex, no 0x
+            mask = params.integer({"led": hex_text}, "led", "Bad value", 0, 0xFFFF, any_base=True)
         leds = {i: params.integer(form, f"led{i}", "Bad led value", 0, 1) for i in (2, 3, 4)
                 if form.get(f"led{i}", "").strip()}
         config_only = [k for k in ("kvp", "kvi", "adcpole") if form.get(k, "").strip()]

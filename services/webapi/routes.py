@@ -33,6 +33,8 @@ from .params import InvalidCommand
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 BOUNDARY = "frame"
+LOG_HISTORY = 50
+"""Log lines a new stream of ``log`` starts with (the robot's page shows them)."""
 S4 = 3
 """io/buttons number of the HAT's S4, the button the old /hat/button/get counted."""
 
@@ -86,6 +88,7 @@ class Api:
         self._leds = self.node.publisher(keys.LEDS)
         self.hub = Hub(self.node.session, render)
         """The bus streams of the HTTP bridge (`bus`), shared by its clients."""
+        self.hub.pin(self.node.key(keys.LOG), history=LOG_HISTORY)  # the page shows the last lines
         self._anyone = Caller("", self.node.session, self.hub)
         self.bridge = Bridge(robot.name, self.caller, query_timeout=robot.timeout)
         self.pages = Pages(self)
