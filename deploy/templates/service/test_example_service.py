@@ -1,18 +1,21 @@
-"""Tests of example_service, in two layers as icefloe's own: the logic alone, then the service
-on a real bus (a Zenoh router in this process). Run: ``python -m pytest test_example_service.py``."""
+"""Tests of example_service, in two layers as icefloe's own: the logic alone, then
+the service on a real bus (a Zenoh router in this process).
+
+    python -m pytest test_example_service.py
+"""
 
 from __future__ import annotations
 
 import asyncio
 import time
 
-import example_service as service
 import pytest
-
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.testing import eventually, local_bus
+
+import example_service as service
 
 
 def pose(x: float, y: float = 0.0) -> m.Pose:
@@ -33,7 +36,8 @@ async def drive_and_watch() -> None:
         async with Node("tester", config) as node:
             distances = node.subscribe(service.DISTANCE, latest=False)
             poses = node.publisher(keys.ODOM_POSE)
-            # Declarations take a moment to reach the router: send the start until the service answers.
+            # Declarations take a moment to reach the router: send the start
+            # until the service answers.
             await eventually(lambda: poses.put(pose(0.0)) or distances.pending())
             for x in (0.1, 0.25, 0.25, 0.0):  # forward 0.25 m, stand, back 0.25 m
                 poses.put(pose(x))
