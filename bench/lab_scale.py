@@ -1,6 +1,6 @@
 """Lab scale: one lab router, N simulated robots, laptops that drive two of them.
 
-    .venv/bin/python bench/lab_scale.py [--robots 10] [--seconds 10] [--cycle-hz 250] [--odom-hz 25]
+    .venv/bin/python bench/lab_scale.py [--robots 10] [--seconds 10] [--cycle-hz 250] [--odom-hz 25] [--direct]
     .venv/bin/python bench/lab_scale.py --router-load [--robots 10,30,60,100] [--seconds 10]
 
 "A lab is a room with twenty robots and forty laptops on one Wi-Fi." This script
@@ -11,7 +11,8 @@ builds that room on one machine, with real processes and real Zenoh sessions
 * one lab router, ``icefloe router lab.toml --lab DIR``, on a free loopback port;
 * N simulated robots without cameras (``services.sim`` + ``services.hwbridge`` +
   ``services.odometry`` each), each in its own namespace ``icefloe/<name>/`` with
-  its own credentials, connected to the lab router;
+  its own credentials and its own router, which joins the lab router (``[zenoh] lab``;
+  ``--direct``: no robot routers, the services connect to the lab router);
 * a student's laptop holding two robots' credentials (one Zenoh session per
   credential), and a classmate's laptop logged in as the read-only ``guest``.
 
@@ -238,6 +239,8 @@ class Report:
     """Processes that exited before the end (robot services, the router), with their status."""
     restarted: list[str]
     """hwbridges whose real-time cycle was not the same process at the end as when the robots were up."""
+    mesh: bool = False
+    """Each robot has its own router, joined to the lab router (else: services on the lab router)."""
 
     def failures(self) -> list[str]:
         """What went wrong, in words (empty: every check passed)."""
@@ -343,7 +346,7 @@ async def measure(lab: Lab, seconds: float, *, start_timeout: float = 60.0, spee
             stalled_reads=stats[-1].stalled_reads - stats[0].stalled_reads if stats else 0)
     return Report(rates=lab.rates, speed=speed, window_s=t1 - t0, startup_s=startup_s, seen=seen, robots=results,
                   cpu=cpu, machine_pct=machine_pct, driven=(a, b), intruded=intruded, crashed=crashed,
-                  restarted=restarted)
+                  restarted=restarted, mesh=lab.mesh)
 
 
 class SimClockTrace:
@@ -410,6 +413,8 @@ def _cycle_rate(stats: list[m.LoopStats]) -> tuple[float, int]:
 
 def print_report(report: Report) -> None:
     r, n, speed = report.rates, len(report.robots), report.speed
+    print("topology: " + ("each robot's own router joins the lab router (ws); laptops on the lab router"
+                          if report.mesh else "every robot's services and the laptops on the lab router"))
     print(f"rates per robot: sim clock 1000 Hz (fixed), hwbridge cycle {r.cycle_hz:g} Hz, "
           f"serial {r.serial_hz:g} Hz, hw/wheels {r.wheels_hz:g} Hz, odom/pose {r.odom_hz:g} Hz")
     print(f"{n} robots alive {report.startup_s:.1f} s after their processes started, each with "
@@ -433,7 +438,7 @@ def print_report(report: Report) -> None:
     print(f"  lab router                  {cpu['router']:6.1f}   (reference: {cpu['router idle']:.1f} idle, "
           f"before the robots joined; {(cpu['router'] - cpu['router idle']) / n:.2f} per robot)")
     print(f"  all robot processes         {cpu['robots']:6.1f}   ({cpu['robots'] / n:.1f} per robot)")
-    for service in (*SERVICES, "hwbridge-rt"):
+    for service in (*SERVICES, "hwbridge-rt", "robot router"):
         print(f"    {service:<25} {cpu.get(service, 0.0):6.1f}")
     print(f"  the laptops (this process)  {cpu['laptop']:6.1f}")
     print(f"  whole machine, all users    {report.machine_pct:6.1f} % of {os.cpu_count()} CPUs busy")
@@ -452,12 +457,14 @@ def main() -> int:
     parser.add_argument("--serial-hz", type=float, default=defaults.serial_hz, help="hwbridge.serial_rate_hz")
     parser.add_argument("--wheels-hz", type=float, default=defaults.wheels_hz, help="hwbridge.wheels_rate_hz")
     parser.add_argument("--odom-hz", type=float, default=defaults.odom_hz, help="odometry.rate_hz")
+    parser.add_argument("--direct", action="store_true",
+                        help="no robot routers: every robot's services are clients of the lab router")
     args = parser.parse_args()
     if args.robots < 3:
         parser.error("--robots: at least 3 (two driven, one to try with the wrong credentials)")
     print(f"$ {' '.join([Path(sys.executable).name, *sys.argv])}")
     rates = Rates(args.cycle_hz, args.serial_hz, args.wheels_hz, args.odom_hz)
-    with tempfile.TemporaryDirectory() as tmp, Lab(Path(tmp), args.robots, rates) as lab:
+    with tempfile.TemporaryDirectory() as tmp, Lab(Path(tmp), args.robots, rates, mesh=not args.direct) as lab:
         lab.start_router()
         report = asyncio.run(measure(lab, args.seconds, start_timeout=30.0 + 6.0 * args.robots))
     print_report(report)

@@ -10,6 +10,11 @@ Strings may contain ``{run_dir}`` (the robot's runtime folder, for sockets and
 pseudo-terminals), ``{name}`` (the robot's name) and ``{python}`` (the Python icefloe runs
 on, for your own Python programs).
 
+The runtime folder is private to the user the services run as (`private_dir`): by default
+``$XDG_RUNTIME_DIR/icefloe/<name>`` (the user's own runtime folder, made by the login
+manager), or ``<tmp>/icefloe-<uid>/<name>`` where there is none. Nothing in it is shared
+with other users of the machine: the simulator's sockets, the router's password file.
+
 Your own services are ``[programs.<name>]`` tables (`Program`): any program, in any
 language, that `icefloe up` runs beside its own services (docs/own-services.md). A program's
 folder (``cwd``) defaults to the folder of the file that defines it, so a config and its
@@ -19,11 +24,12 @@ programs travel together, also through ``extends``.
 from __future__ import annotations
 
 import os
+import stat
 import sys
 import tempfile
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
 
@@ -216,6 +222,26 @@ class Localizer(Section):
     showing >= 2 known markers (0 = never)."""
 
 
+class Lens(Section):
+    """The simulated camera's true lens: what `icefloe calibrate` measures (``[sim.lens]``).
+
+    The camera service does not read it: it believes ``[camera]`` (``focal_px``, or its
+    ``calibration`` file), as it would on a real robot. Zeros mean "as the nominal camera".
+    """
+
+    fx: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Focal length along x, pixels (0 = ``camera.focal_px``)."""
+    fy: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Focal length along y, pixels (0 = fx)."""
+    cx: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Principal point, pixels from the left edge (0 = the image centre)."""
+    cy: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Principal point, pixels from the top edge (0 = the image centre)."""
+    distortion: Annotated[list[Annotated[float, msgspec.Meta(ge=-10, le=10)]], msgspec.Meta(max_length=5)] = \
+        msgspec.field(default_factory=list)
+    """OpenCV distortion coefficients k1, k2, p1, p2[, k3] (empty = none)."""
+
+
 class Sim(Section):
     world: str = "lab"
     """The simulated world: a world name or a path, as `Localizer.world`."""
@@ -232,6 +258,8 @@ class Sim(Section):
     gateware_clk_hz: float = 1e6
     """icoboard = "gateware": the FPGA clock in the simulation, Hz (the board's is 100 MHz;
     scaled down so the simulation keeps real time)."""
+    lens: Lens = Lens()
+    """The simulated camera's true lens (defaults: the nominal camera of ``[camera]``)."""
 
 
 class Webapi(Section):
@@ -264,6 +292,9 @@ class Zenoh(Section):
     """Router: the certificate's private key (PEM)."""
     tls_root_ca: str = ""
     """Clients: the lab's CA certificate (PEM), to trust a router on a ``tls/...`` endpoint."""
+    lab: list[str] = []
+    """The lab router this robot's router joins, e.g. ``["ws/192.168.1.2:7448"]`` (docs/lab.md).
+    Needs access_control; the protocol must be one the robot's router does not listen on."""
     config: str = ""
     """Extra Zenoh JSON5 config file merged into the router's."""
 
@@ -293,7 +324,8 @@ RESERVED_NAMES = {*ALL_SERVICES, "router", "viz", "up", "cli"}
 class RobotConfig(Section):
     name: str = "sim"
     run_dir: str = ""
-    """Runtime folder for sockets and pseudo-terminals ("" = <tmp>/icefloe-<name>)."""
+    """Runtime folder for sockets, pseudo-terminals and the router's password file, private to
+    the services' user ("" = $XDG_RUNTIME_DIR/icefloe/<name>, or <tmp>/icefloe-<uid>/<name>)."""
     services: list[str] = msgspec.field(default_factory=lambda: list(ALL_SERVICES))
     """Services `icefloe up` starts (besides the router), in order; missing ones are skipped.
     May name `programs` to place them; programs not named start after the services."""
@@ -315,7 +347,54 @@ class RobotConfig(Section):
 
     @property
     def runtime_dir(self) -> Path:
-        return Path(self.run_dir or Path(tempfile.gettempdir()) / f"icefloe-{self.name}")
+        return Path(self.run_dir) if self.run_dir else default_run_dir(self.name)
+
+
+def default_run_dir(name: str) -> Path:
+    """``$XDG_RUNTIME_DIR/icefloe/<name>``, or ``<tmp>/icefloe-<uid>/<name>`` without one."""
+    xdg = os.environ.get("XDG_RUNTIME_DIR", "")
+    if xdg and os.path.isabs(xdg):
+        return Path(xdg) / "icefloe" / name
+    return Path(tempfile.gettempdir()) / f"icefloe-{os.getuid()}" / name
+
+
+def private_dir(path: Path) -> Path:
+    """Make ``path`` (and the folders it needs) a folder only this user may enter (0700).
+
+    Refuses (`ConfigError`) a symlink, a file, or a folder that belongs to another user: in a
+    shared ``/tmp`` someone else could have made it first to read or swap what we put there.
+    The parent of the default folder under ``<tmp>`` is checked the same way.
+    """
+    if not path.is_absolute():
+        path = path.absolute()
+    shared_tmp = Path(tempfile.gettempdir())
+    if path.parent.parent == shared_tmp and path.parent.name.startswith("icefloe-"):
+        private_dir(path.parent)  # <tmp>/icefloe-<uid>: ours too, or someone could swap <name>
+    try:
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = os.lstat(path)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot make the runtime folder: {exc.strerror}") from None
+    if stat.S_ISLNK(st.st_mode) or not stat.S_ISDIR(st.st_mode):
+        raise ConfigError(f"{path}: the runtime folder is a symlink or not a folder; remove it or set run_dir")
+    if st.st_uid != os.getuid():
+        raise ConfigError(f"{path}: the runtime folder belongs to user {st.st_uid}, not to this user "
+                          f"({os.getuid()}); remove it or set run_dir")
+    if st.st_mode & 0o077:
+        os.chmod(path, 0o700)
+    return path
+
+
+SECRET_FIELDS = ("password",)
+
+
+def printable(config: RobotConfig) -> dict[str, Any]:
+    """The config as plain data for printing, with the password replaced by ``"***"``."""
+    data = msgspec.to_builtins(config)
+    for field in SECRET_FIELDS:
+        if data["zenoh"].get(field):
+            data["zenoh"][field] = "***"
+    return data
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -416,9 +495,10 @@ def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
         config = msgspec.convert(data, RobotConfig)
     except msgspec.ValidationError as exc:
         raise ConfigError(field_error(source, exc)) from None
-    if not config.name or "/" in config.name or "*" in config.name:
+    if not config.name or any(c in config.name for c in "/*$#? "):
         raise ConfigError(f"{source}: name: {config.name!r} is not a usable robot name")
     check_programs(config, source)
+    check_lab(config.zenoh, config.zenoh.listen, source)
     run_dir = str(config.runtime_dir)
     expanded = _expand(msgspec.to_builtins(config), {"run_dir": run_dir, "name": config.name,
                                                      "python": sys.executable})
@@ -442,6 +522,28 @@ def check_programs(config: RobotConfig, source: str) -> None:
         if not program.command or not program.command[0]:
             raise ConfigError(f"{source}: programs.{name}.command: give the program to run, "
                               'e.g. ["{python}", "my_service.py"]')
+
+
+def protocol(endpoint: str) -> str:
+    """``"ws/10.0.0.2:7448"`` -> ``"ws"``."""
+    return endpoint.split("/", 1)[0]
+
+
+def check_lab(zenoh: Zenoh, listen: list[str], source: str) -> None:
+    """`ConfigError` unless ``[zenoh] lab`` can work: access control on, and a protocol the robot's
+    router does not listen on (that is how the router knows its lab link: deploy/zenoh/acl/lab-link.json5)."""
+    if not zenoh.lab:
+        return
+    if not zenoh.access_control:
+        raise ConfigError(f"{source}: zenoh.lab needs zenoh.access_control = true: the robot's router "
+                          "logs in to the lab router with the robot's credentials")
+    if bad := [e for e in zenoh.lab if "/" not in e]:
+        raise ConfigError(f"{source}: zenoh.lab: {bad[0]!r} is not a Zenoh endpoint (e.g. 'ws/192.168.1.2:7448')")
+    if clash := {protocol(e) for e in zenoh.lab} & {protocol(e) for e in listen}:
+        p = sorted(clash)[0]
+        raise ConfigError(f"{source}: zenoh.lab uses {p}, which this robot's router also listens on, so it "
+                          f"could not tell its lab link from a laptop: give the lab router another "
+                          f"protocol, e.g. ws/<lab machine>:7448 (docs/lab.md)")
 
 
 def find(name_or_path: str | os.PathLike[str] | None = None) -> Path:

@@ -123,9 +123,10 @@ def install_plan(config: RobotConfig, config_path: Path, host: str = "") -> list
                f"{cpu} for hwbridge's cycle alone (take effect after a reboot)",
                ("sed", "-i", "-e", "s/console=serial0,[0-9]* //",
                 "-e", f"/isolcpus=/! s/$/ isolcpus={cpu}/", str(BOOT_CONFIG.parent / "cmdline.txt"))),
-        Action(f"the runtime folder {config.runtime_dir} for the services' sockets, at every boot",
+        Action(f"the runtime folder {config.runtime_dir} for the services' sockets, at every boot, "
+               f"private to {USER}",
                path=Path("/etc/tmpfiles.d/icefloe.conf"),
-               content=f"d {config.runtime_dir} 0755 {USER} {USER} -\n"),
+               content=f"d {config.runtime_dir} 0700 {USER} {USER} -\n"),
         Action("create it now", ("systemd-tmpfiles", "--create", "/etc/tmpfiles.d/icefloe.conf")),
     ]
     if config.zenoh.access_control and config.zenoh.credentials:

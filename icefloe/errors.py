@@ -48,3 +48,19 @@ class GatewareError(IcefloeError):
 
 class NotReachable(IcefloeError):
     """A robot (its Zenoh router or a queryable) did not answer in time."""
+
+
+class MotionError(IcefloeError):
+    """A closed-loop motion (`Robot.forward`, `Robot.turn`) did not get there; the robot is stopped."""
+
+
+class MotionTimeout(MotionError, TimeoutError):
+    """The motion was not done within its timeout (a blocked wheel, a speed the motors cannot hold).
+
+    The message says how far it got, e.g. ``forward(0.5 m): 0.12 m done after 6.0 s (timeout)``.
+    """
+
+
+class MotionStopped(MotionError):
+    """Something else ended the motion first: a ``cmd/stop`` from another program, or another
+    command from this one."""

@@ -30,7 +30,7 @@ NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
 
 def packaged(*parts: str) -> Path:
-    """A file shipped with icefloe, e.g. ``packaged("zenoh", "robot-acl.json5")``."""
+    """A file shipped with icefloe, e.g. ``packaged("zenoh", "acl", "owner.json5")``."""
     return Path(str(resources.files("icefloe.share").joinpath(*parts)))
 
 

@@ -141,13 +141,16 @@ class Subscription(Generic[T]):
         *,
         latest: bool,
         maxsize: int,
+        typed: bool = True,
     ) -> None:
         self.key_expr = key_expr
         self.latest = latest
         self.skipped = 0
         """Samples overwritten (latest) or dropped because the queue was full (fifo)."""
         self.rejected = 0
-        """Samples dropped because they did not decode."""
+        """Samples dropped because they did not decode, or came on a wildcard (`Node.own_key`)."""
+        self._typed = typed
+        self._node = node
         self._decode = decode
         self._loop = asyncio.get_running_loop()
         self._items: deque[RawSample] = deque(maxlen=1 if latest else maxsize)
@@ -188,6 +191,9 @@ class Subscription(Generic[T]):
                     raise StopAsyncIteration
                 await self._wake.wait()
                 continue
+            if self._typed and not self._node.own_key(self.key_expr, raw.key):
+                self.rejected += 1
+                continue
             try:
                 return self._decode(raw)
             except BadPayload as exc:
@@ -221,7 +227,8 @@ class Batches(Generic[T]):
         self.key_expr = key_expr
         self.period = period
         self.rejected = 0
-        """Samples dropped because they did not decode."""
+        """Samples dropped because they did not decode, or came on a wildcard (`Node.own_key`)."""
+        self._node = node
         self._decode = decode
         self._deadline: float | None = None
         self._closed = False
@@ -246,7 +253,10 @@ class Batches(Generic[T]):
         """The messages that arrived since the last list, now, without waiting."""
         batch: list[T] = []
         while (sample := self._sub.try_recv()) is not None:
-            raw = RawSample(self.key_expr, sample.payload.to_bytes(), str(sample.encoding), 0.0)
+            raw = RawSample(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), 0.0)
+            if not self._node.own_key(self.key_expr, raw.key):
+                self.rejected += 1
+                continue
             try:
                 batch.append(self._decode(raw))
             except BadPayload as exc:
@@ -309,9 +319,22 @@ class Node:
         self._closables: list[Any] = []
         self._log_handler: _BusLogHandler | None = None
         self._tasks: set[asyncio.Task[Any]] = set()
+        self._wildcards = LimitedLog(self.log)
 
     def key(self, topic: Topic | str) -> str:
         return keys.key(self.robot, topic)
+
+    def own_key(self, key_expr: str, arrived: str) -> bool:
+        """Did a message for ``key_expr`` come on one concrete key (``arrived``), as every real
+        sender puts it? A put or query on a wildcard (``icefloe/*/cmd/twist`` reaches the
+        subscriber of ``icefloe/sim/cmd/twist`` too, and arrives as such) is not taken: False,
+        and one rate-limited warning naming it. Typed subscriptions and command queryables use
+        this; so does any raw subscriber that takes commands (hwbridge's ``cmd/stop``)."""
+        if keys.is_concrete(arrived):
+            return True
+        self._wildcards.warning(f"dropped a message sent to {arrived} (for {key_expr}): a wildcard, "
+                                "not a key; messages are taken on their own key only")
+        return False
 
     async def __aenter__(self) -> Node:
         with service_zenoh_pools() if self.one_zenoh_thread else contextlib.nullcontext():
@@ -365,7 +388,8 @@ class Node:
 
     def subscribe_raw(self, key_expr: str, *, maxsize: int = 1024) -> Subscription[Any]:
         """Undecoded samples of any key expression (wildcards allowed), in order."""
-        sub: Subscription[Any] = Subscription(self, key_expr, lambda raw: raw, latest=False, maxsize=maxsize)
+        sub: Subscription[Any] = Subscription(self, key_expr, lambda raw: raw, latest=False, maxsize=maxsize,
+                                              typed=False)
         self._closables.append(sub)
         return sub
 
@@ -384,6 +408,9 @@ class Node:
         key_expr = self.key(topic)
 
         async def answer(query: zenoh.Query) -> None:
+            if topic.command and not self.own_key(key_expr, str(query.key_expr)):
+                query.drop()  # no answer: a command is taken on its own key only
+                return
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 encoding = str(query.encoding) if query.encoding is not None else ""
@@ -432,10 +459,13 @@ class Node:
         return await asyncio.to_thread(ask)
 
     async def alive(self, robot: str | None = None) -> list[str]:
-        """Services holding a liveliness token on a robot (``*`` for every robot)."""
-        pattern = keys.alive_key(robot or self.robot, "*")
+        """Services holding a liveliness token on a robot (``*`` for every robot): the tokens
+        ``icefloe/<robot>/alive/<service>``; a wildcard token (``icefloe/*/alive/x``) is no service."""
+        robot = robot or self.robot
+        pattern = keys.alive_key(robot, "*")
         replies = await asyncio.to_thread(lambda: list(self.session.liveliness().get(pattern, timeout=1.0)))
-        return sorted({str(r.ok.key_expr) for r in replies if r.ok is not None})
+        tokens = {str(r.ok.key_expr) for r in replies if r.ok is not None}
+        return sorted(t for t in tokens if (who := keys.alive_of(t)) and robot in ("*", who[0]))
 
 
 class _BusLogHandler(logging.Handler):
@@ -604,6 +634,7 @@ def run(main: Callable[[RobotConfig], Awaitable[int | None]], argv: Sequence[str
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         cfg = load_config(args)
+        config_mod.private_dir(cfg.runtime_dir)  # sockets, ptys, the router's password file: ours only
     except ConfigError as exc:
         print(f"icefloe: {exc}", file=sys.stderr)
         raise SystemExit(CANNOT_START) from None

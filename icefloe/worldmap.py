@@ -16,6 +16,20 @@ marker::
 The simulator renders these markers, the camera service takes each marker's
 size from here (to measure its distance), and the localizer uses the positions.
 
+A world may also stand calibration boards in it, for `icefloe calibrate` in the
+simulator (only the simulator's camera sees them; see `Board`)::
+
+    [[board]]
+    kind = "chessboard"       # or "charuco"
+    columns = 10              # squares across (a chessboard has columns - 1 inner corners)
+    rows = 7                  # squares down
+    square = 0.025            # side of a square, m
+    x = 0.5                   # centre of the board, m
+    y = 0.0
+    z = 0.12
+    yaw = 3.14159             # direction the printed face points, rad, CCW from +x
+    tilt = 0.35               # leaning back by this, rad (top edge away from the viewer)
+
 World frame: x and y on the floor, z up, angles counter-clockwise from +x.
 """
 
@@ -23,7 +37,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import msgspec
 
@@ -53,11 +67,46 @@ class Marker(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
                 raise ValueError(f"`{key}` must be a finite number")
 
 
+class Board(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A camera calibration board standing in the world (a ``[[board]]`` table), printed with a
+    white margin of one square; ``icefloe calibrate --board ...`` must be told the same sizes."""
+
+    columns: Annotated[int, msgspec.Meta(ge=3, le=40)]
+    """Squares across."""
+    rows: Annotated[int, msgspec.Meta(ge=3, le=40)]
+    """Squares down."""
+    square: Annotated[float, msgspec.Meta(gt=0)]
+    """Side of a square, m."""
+    x: float
+    """Centre, world frame, m."""
+    y: float
+    z: float
+    """Height of the centre above the floor, m."""
+    yaw: float
+    """Direction the printed face points, rad, counter-clockwise from +x."""
+    tilt: float = 0.0
+    """Leaning back by this, rad: the top edge away from whoever faces it."""
+    kind: Literal["chessboard", "charuco"] = "chessboard"
+    marker: float = 0.0
+    """ChArUco: side of each ArUco marker, m (less than ``square``)."""
+    dictionary: str = "DICT_5X5_100"
+    """ChArUco: the markers' dictionary (not the landmarks': the localizer must not take them for landmarks)."""
+
+    def __post_init__(self) -> None:
+        for key in ("square", "x", "y", "z", "yaw", "tilt", "marker"):
+            if not math.isfinite(getattr(self, key)):
+                raise ValueError(f"`{key}` must be a finite number")
+        if self.kind == "charuco" and not 0 < self.marker < self.square:
+            raise ValueError("`marker` must be > 0 and smaller than `square` for a charuco board")
+
+
 class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """A named set of markers with unique ids (a world file: ``name`` and ``[[marker]]`` tables)."""
+    """A named set of markers with unique ids (a world file: ``name`` and ``[[marker]]`` tables),
+    and the calibration boards standing in it (``[[board]]``)."""
 
     name: str = ""
     markers: tuple[Marker, ...] = msgspec.field(default=(), name="marker")
+    boards: tuple[Board, ...] = msgspec.field(default=(), name="board")
 
     def marker(self, id: int) -> Marker | None:
         """The marker with this ArUco id, or None if the world has none."""

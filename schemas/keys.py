@@ -32,6 +32,15 @@ class Topic:
     urgent: bool = False
     """Sent at Zenoh's real-time priority, without batching: overtakes other traffic in
     every queue on the way (``cmd/stop``)."""
+    read_only: bool = False
+    """For a queryable: asking it changes nothing on the robot, so anyone who may watch the
+    robot (the read-only ``guest`` too) may ask it. Every other queryable is a command."""
+
+    @property
+    def command(self) -> bool:
+        """Does a message on this key make the robot do something (an ``in`` key, or a queryable
+        that is not `read_only`)? Only the robot's owner may send one (docs/lab.md)."""
+        return self.kind == "in" or (self.kind == "query" and not self.read_only)
 
 
 TWIST = Topic("cmd/twist", m.Twist, "in")
@@ -69,8 +78,8 @@ SIM_CONTROL = Topic("sim/control", m.SimControl, "query", reply=m.SimState)
 """The simulator's test handles (see `SimControl`)."""
 
 ODOM_RESET = Topic("odom/reset", m.PoseReset, "query", reply=m.Pose)
-SNAPSHOT = Topic("camera/snapshot", m.Stop, "query", reply=m.Image)
-INFO = Topic("info", m.Stop, "query", reply=m.RobotInfo)
+SNAPSHOT = Topic("camera/snapshot", m.Stop, "query", reply=m.Image, read_only=True)
+INFO = Topic("info", m.Stop, "query", reply=m.RobotInfo, read_only=True)
 SHUTDOWN_REQUEST = Topic("power/request", m.ShutdownRequest, "query", reply=m.ShutdownNotice)
 
 TABLE: dict[str, Topic] = {
@@ -85,6 +94,10 @@ TABLE: dict[str, Topic] = {
 }  # fmt: skip
 
 
+READ_ONLY_QUERIES = [t for t in TABLE.values() if t.kind == "query" and t.read_only]
+"""The queryables a guest may ask (deploy/zenoh/acl.json5 is filled in from this list)."""
+
+
 def key(robot: str, topic: Topic | str) -> str:
     """The full key expression of a topic on a robot."""
     name = topic.name if isinstance(topic, Topic) else topic
@@ -94,6 +107,20 @@ def key(robot: str, topic: Topic | str) -> str:
 def alive_key(robot: str, service: str) -> str:
     """The liveliness token a running service holds: ``icefloe/<robot>/alive/<service>``."""
     return f"{PREFIX}/{robot}/alive/{service}"
+
+
+def alive_of(key_expr: str) -> tuple[str, str] | None:
+    """``"icefloe/sim/alive/hwbridge"`` -> ``("sim", "hwbridge")``; None for anything else,
+    a wildcard token (``icefloe/*/alive/x``) included: it names no robot and no service."""
+    parts = str(key_expr).split("/")
+    if len(parts) != 4 or parts[0] != PREFIX or parts[2] != "alive" or not is_concrete(key_expr):
+        return None
+    return (parts[1], parts[3]) if parts[1] and parts[3] else None
+
+
+def is_concrete(key_expr: str) -> bool:
+    """Does ``key_expr`` name one key only (no ``*``, ``**`` or ``$*`` wildcard)?"""
+    return "*" not in key_expr
 
 
 def split(key_expr: str) -> tuple[str, str]:

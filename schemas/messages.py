@@ -211,12 +211,20 @@ class BatteryReading(Message):
 
 
 class Buttons(Message):
-    """``io/buttons``: a button was pressed. Sent once per press."""
+    """``io/buttons``: a button was pressed (or released). Sent once per event.
+
+    Who sends what: hwbridge sends presses of the PenguinPi HAT's S4 (3), which its
+    firmware only counts (no releases; S1..S3 act on the board itself); the power
+    service sends presses and releases of the shutdown button (10), which it reads
+    as a GPIO line (held for ``power.button_hold_s`` it shuts the robot down).
+    """
 
     stamp: int
     button: int
     """0..3 for the PenguinPi HAT's S1..S4; 10 for the shutdown button."""
     presses: int = 1
+    """Presses since the last message (the board may count several between two reads); 0 for a release."""
+    event: Literal["press", "release"] = "press"
 
 
 class Dip(Message):
@@ -419,6 +427,8 @@ class SimState(Message):
     """GPIO10 level (0 = the board asks the Pi to shut down)."""
     gpio_ack: int = 0
     """GPIO11 level (1 = the Pi's shutdown daemon is alive)."""
+    leds: int = 0
+    """The board's LEDs lit now, bit n-1 = LED n (PenguinPi: 1 red, 2..4 yellow); 0 on the icoBoard."""
 
 
 class OledFrame(Message):

@@ -8,10 +8,17 @@ optional blur. It also returns the ground truth: which markers are fully in view
 and their range and bearing from the robot's centre, to score a detector against.
 
 Markers are real ArUco bit patterns from ``cv2.aruco`` with a white quiet border
-of one cell around the black square, as you would print them. The room is empty
-and convex (markers on its walls face inward), so nothing is ever occluded.
-Lens distortion is not rendered: use the nominal camera (or a calibration with
-zero distortion) in simulation.
+of one cell around the black square, as you would print them. Calibration boards
+(a world's ``[[board]]``: chessboards, or ChArUco boards from ``cv2.aruco``) are
+drawn the same way, with a white margin of one square; `CameraRenderer.board_corners`
+gives their inner corners' true pixels. Nearer things are drawn over farther ones
+(the lab room is empty and convex, so its markers never overlap).
+
+The lens is the intrinsics' own, distortion included: with distortion coefficients
+the frame is drawn through an ideal pinhole onto a larger canvas, then bent with
+``cv2.remap`` as the lens would bend it. The simulator's true lens is ``[sim.lens]``
+(`true_intrinsics`), which the camera service does not know: that is what
+``icefloe calibrate`` measures.
 """
 
 from __future__ import annotations
@@ -22,11 +29,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from icefloe.config import RobotConfig
+from icefloe.services.camera import calibration
 from icefloe.services.camera.geometry import Intrinsics, Mount, range_bearing
-from icefloe.worldmap import WorldMap
+from icefloe.worldmap import Board, WorldMap
 
 NEAR = 0.02
 """Points closer than this in front of the lens (m) are not drawn."""
+BOARD_SUPERSAMPLE = 4
+"""Calibration boards are drawn at this many times the frame's resolution, then averaged down."""
 
 
 @dataclass(frozen=True)
@@ -52,11 +63,57 @@ def marker_corners(x: float, y: float, z: float, yaw: float, half: float) -> np.
     Order as ArUco reports them, seen from the front: top-left, top-right,
     bottom-right, bottom-left.
     """
-    # Someone facing the marker looks along -normal; their right hand points along `right`.
-    right = np.array([-math.sin(yaw), math.cos(yaw), 0.0]) * half
-    up = np.array([0.0, 0.0, half])
-    c = np.array([x, y, z])
-    return np.array([c - right + up, c + right + up, c + right - up, c - right - up])
+    return rectangle_corners(np.array([x, y, z]), *board_axes(yaw, 0.0)[:2], half, half)
+
+
+def board_axes(yaw: float, tilt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit vectors (right, up, normal) of a flat thing facing ``yaw``, leaning back by ``tilt`` (rad)."""
+    # Someone facing it looks along -normal; their right hand points along `right`.
+    right = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+    facing = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    up = np.array([0.0, 0.0, 1.0]) * math.cos(tilt) - facing * math.sin(tilt)
+    normal = facing * math.cos(tilt) + np.array([0.0, 0.0, 1.0]) * math.sin(tilt)
+    return right, up, normal
+
+
+def rectangle_corners(centre: np.ndarray, right: np.ndarray, up: np.ndarray, half_w: float,
+                      half_h: float) -> np.ndarray:
+    """World corners (4x3) of a rectangle: top-left, top-right, bottom-right, bottom-left from the front."""
+    r, u = right * half_w, up * half_h
+    return np.array([centre - r + u, centre + r + u, centre + r - u, centre - r - u])
+
+
+def board_inner_corners(board: Board) -> np.ndarray:
+    """World positions ((columns-1) x (rows-1), 3) of a board's inner corners, row by row from the
+    top-left, as seen from the front (where square corners meet)."""
+    right, up, _ = board_axes(board.yaw, board.tilt)
+    i, j = np.meshgrid(np.arange(1, board.columns), np.arange(1, board.rows))
+    across = (i.ravel() - board.columns / 2) * board.square
+    down = (j.ravel() - board.rows / 2) * board.square
+    return np.array([board.x, board.y, board.z]) + np.outer(across, right) - np.outer(down, up)
+
+
+def board_texture(board: Board, cell_px: int) -> np.ndarray:
+    """The printed board with a white margin of one square, ``cell_px`` pixels per square (grey, uint8)."""
+    w, h = (board.columns + 2) * cell_px, (board.rows + 2) * cell_px
+    if board.kind == "charuco":
+        printed = calibration.Board(board.columns, board.rows, board.square, "charuco", board.marker,
+                                    board.dictionary)
+        return printed.charuco().generateImage((w, h), marginSize=cell_px)
+    squares = (np.add.outer(np.arange(board.rows), np.arange(board.columns)) % 2) * 255  # black top-left
+    inner = np.kron(squares, np.ones((cell_px, cell_px))).astype(np.uint8)
+    return cv2.copyMakeBorder(inner, cell_px, cell_px, cell_px, cell_px, cv2.BORDER_CONSTANT, value=255)
+
+
+def true_intrinsics(config: RobotConfig) -> Intrinsics:
+    """The simulated camera's true lens, ``[sim.lens]`` over the nominal camera of ``[camera]``."""
+    cam, lens = config.camera, config.sim.lens
+    fx = lens.fx or cam.focal_px
+    k = np.array([[fx, 0.0, lens.cx or (cam.width - 1) / 2], [0.0, lens.fy or fx, lens.cy or (cam.height - 1) / 2],
+                  [0.0, 0.0, 1.0]])
+    dist = np.zeros(5)
+    dist[:len(lens.distortion)] = lens.distortion[:5]
+    return Intrinsics(k, dist, cam.width, cam.height)
 
 
 class CameraRenderer:
@@ -77,7 +134,9 @@ class CameraRenderer:
         """``noise``: pixel noise, standard deviation in grey levels; ``lighting``: relative
         frame-to-frame brightness change (0.15 = up to ±15 %); ``blur``: Gaussian blur sigma, px."""
         self.world, self.k, self.mount = world, intrinsics.camera_matrix, mount
+        self.dist = np.asarray(intrinsics.dist_coeffs, dtype=float)
         self.width, self.height = intrinsics.width, intrinsics.height
+        self._canvas_k, self._canvas_size, self._lens_maps = self._lens(intrinsics)
         self.noise, self.lighting, self.blur = noise, lighting, blur
         self._dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
         self._cells = self._dictionary.markerSize + 2  # bits plus the black border
@@ -87,13 +146,20 @@ class CameraRenderer:
         if too_big:
             raise ValueError(f"world {world.name}: marker id {too_big[0]} is not in {dictionary}")
         # Per marker: the black square's corners and those of the square with its quiet border.
-        self._black = np.array([marker_corners(m.x, m.y, m.z, m.yaw, m.size / 2) for m in world.markers])
+        self._black = np.array([marker_corners(m.x, m.y, m.z, m.yaw, m.size / 2)
+                                for m in world.markers]).reshape(-1, 4, 3)
         pad = (self._cells + 2) / self._cells
         self._quiet = np.array([marker_corners(m.x, m.y, m.z, m.yaw, m.size / 2 * pad)
-                                for m in world.markers])
-        self._normals = np.array([[math.cos(m.yaw), math.sin(m.yaw), 0.0] for m in world.markers])
-        self._centres = np.array([[m.x, m.y, m.z] for m in world.markers])
+                                for m in world.markers]).reshape(-1, 4, 3)
+        self._normals = np.array([[math.cos(m.yaw), math.sin(m.yaw), 0.0] for m in world.markers]).reshape(-1, 3)
+        self._centres = np.array([[m.x, m.y, m.z] for m in world.markers]).reshape(-1, 3)
         self._textures: dict[tuple[int, int], np.ndarray] = {}
+        self._board_textures: dict[tuple[int, int], np.ndarray] = {}
+        self._board_quads = np.array([rectangle_corners(np.array([b.x, b.y, b.z]), *board_axes(b.yaw, b.tilt)[:2],
+                                                        (b.columns + 2) * b.square / 2, (b.rows + 2) * b.square / 2)
+                                      for b in world.boards]).reshape(-1, 4, 3)
+        self._board_normals = np.array([board_axes(b.yaw, b.tilt)[2] for b in world.boards]).reshape(-1, 3)
+        self._board_centres = np.array([[b.x, b.y, b.z] for b in world.boards]).reshape(-1, 3)
         self._background = self._make_background()
         # A bank of noise images drawn once: drawing 300 k normals per frame would cost more
         # than the whole rest of the render.
@@ -103,14 +169,38 @@ class CameraRenderer:
 
     # ------------------------------------------------------------------ drawing
 
+    def _lens(self, intrinsics: Intrinsics) -> tuple[np.ndarray, tuple[int, int], tuple[np.ndarray, ...] | None]:
+        """The ideal canvas to draw on (its camera matrix and size) and the remap that bends it
+        into the frame; no canvas and no remap for a lens without distortion."""
+        if not self.dist.any():
+            return self.k, (self.width, self.height), None
+        # Where every frame pixel looks, in ideal (undistorted) pixels of the same camera matrix.
+        u, v = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))
+        pixels = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-6)
+        if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4
+            ideal = cv2.undistortPointsIter(pixels, self.k, self.dist, None, self.k, criteria)
+        else:  # OpenCV 5 took the criteria into undistortPoints
+            ideal = cv2.undistortPoints(pixels, self.k, self.dist, R=None, P=self.k, criteria=criteria)
+        ideal = ideal.reshape(-1, 2)
+        low, high = np.floor(ideal.min(axis=0)) - 2, np.ceil(ideal.max(axis=0)) + 2
+        low = np.maximum(low, [-self.width, -self.height])  # a wild lens must not ask for a huge canvas
+        high = np.minimum(high, [2 * self.width, 2 * self.height])
+        canvas_k = self.k.copy()
+        canvas_k[:2, 2] -= low
+        size = (int(high[0] - low[0]), int(high[1] - low[1]))
+        maps = (ideal - low).astype(np.float32).reshape(self.height, self.width, 2)
+        return canvas_k, size, (maps[..., 0].copy(), maps[..., 1].copy())
+
     def _make_background(self) -> np.ndarray:
         """Plain walls above the horizon, a darker floor below it, with gentle gradients."""
-        horizon = self.k[1, 2]
-        rows = np.arange(self.height, dtype=np.float32)[:, None]
-        wall = 175 + 20 * (rows / self.height)
-        floor = 95 + 40 * ((rows - horizon) / max(self.height - horizon, 1))
+        width, height = self._canvas_size
+        horizon = self._canvas_k[1, 2]
+        rows = np.arange(height, dtype=np.float32)[:, None]
+        wall = 175 + 20 * (rows / height)
+        floor = 95 + 40 * ((rows - horizon) / max(height - horizon, 1))
         column = np.where(rows < horizon, wall, floor)
-        return np.repeat(column, self.width, axis=1).clip(0, 255).astype(np.uint8)
+        return np.repeat(column, width, axis=1).clip(0, 255).astype(np.uint8)
 
     def _texture(self, marker_id: int, cell_px: int) -> np.ndarray:
         """The marker with a one-cell white quiet border, ``cell_px`` pixels per cell (cached)."""
@@ -122,30 +212,71 @@ class CameraRenderer:
             self._textures[key] = tex
         return tex
 
-    def _project(self, points_camera: np.ndarray) -> np.ndarray:
-        """Camera-frame points (..., 3), m → pixels (..., 2)."""
+    def _project(self, points_camera: np.ndarray, k: np.ndarray | None = None) -> np.ndarray:
+        """Camera-frame points (..., 3), m → ideal pinhole pixels (..., 2) of ``k`` (default: the canvas)."""
+        k = self._canvas_k if k is None else k
         z = points_camera[..., 2:3]
         uv = points_camera[..., :2] / z
-        return uv * [self.k[0, 0], self.k[1, 1]] + [self.k[0, 2], self.k[1, 2]]
+        return uv * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]]
+
+    def _frame_pixels(self, points_camera: np.ndarray) -> np.ndarray:
+        """Camera-frame points (n, 3), m → where the lens puts them in the frame, pixels (n, 2)."""
+        if self._lens_maps is None:
+            return self._project(points_camera, self.k)
+        zero = np.zeros(3)
+        return cv2.projectPoints(points_camera.reshape(-1, 1, 3), zero, zero, self.k, self.dist)[0].reshape(-1, 2)
+
+    @staticmethod
+    def _mip(side_px: float, cells: int, largest: int = 64) -> int:
+        """The texture resolution nearest above the on-screen cell size (a mip-map), px per cell:
+        warping a much larger texture down would alias the cell edges."""
+        cell_px = 2
+        while cell_px < largest and cell_px < side_px / cells:
+            cell_px *= 2
+        return cell_px
 
     def _draw(self, image: np.ndarray, marker_id: int, quad: np.ndarray, black: np.ndarray) -> None:
         """Warp one marker's texture onto ``quad`` (4x2 px), touching only its bounding box."""
+        side_px = max(np.linalg.norm(black[1] - black[0]), np.linalg.norm(black[3] - black[0]))
+        self._warp(image, self._texture(marker_id, self._mip(side_px, self._cells)), quad)
+
+    def _draw_board(self, image: np.ndarray, index: int, quad: np.ndarray) -> None:
+        """Draw board ``index`` onto ``quad``, anti-aliased: warped at `BOARD_SUPERSAMPLE` times the
+        resolution, then averaged down. Its corners land within 0.05 px of the truth, and a ChArUco
+        board's marker bits stay readable (a plain warp aliases both)."""
+        board = self.world.boards[index]
+        height, width = image.shape[:2]
+        x0, y0 = np.floor(quad.min(axis=0)).astype(int)
+        x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 1
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+        if x1 <= x0 or y1 <= y0:
+            return
+        f = BOARD_SUPERSAMPLE
+        big = cv2.resize(image[y0:y1, x0:x1], None, fx=f, fy=f, interpolation=cv2.INTER_NEAREST)
+        # A pixel centre u of the frame is at (u + 0.5) * f - 0.5 in the supersampled picture.
+        big_quad = (quad - [x0, y0] + 0.5) * f - 0.5
+        side_px = max(np.linalg.norm(big_quad[1] - big_quad[0]) / (board.columns + 2),
+                      np.linalg.norm(big_quad[3] - big_quad[0]) / (board.rows + 2))
+        cell_px = self._mip(side_px, 1, 128)  # the texture at least as fine as the supersampled picture
+        tex = self._board_textures.get((index, cell_px))
+        if tex is None:
+            tex = self._board_textures[index, cell_px] = board_texture(board, cell_px)
+        self._warp(big, tex, big_quad)
+        image[y0:y1, x0:x1] = cv2.resize(big, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+
+    @staticmethod
+    def _warp(image: np.ndarray, tex: np.ndarray, quad: np.ndarray) -> None:
+        """Warp ``tex`` onto ``quad`` (4x2 px: its TL, TR, BR, BL corners), touching only its bounding box."""
+        height, width = image.shape[:2]
         x0, y0 = np.floor(quad.min(axis=0)).astype(int)
         x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 1
         x0, y0 = max(x0, 0), max(y0, 0)
-        x1, y1 = min(x1, self.width), min(y1, self.height)
+        x1, y1 = min(x1, width), min(y1, height)
         if x1 <= x0 or y1 <= y0:
             return
-        # Pick the texture resolution nearest above the on-screen cell size (a mip-map):
-        # warping a much larger texture down would alias the cell edges.
-        side_px = max(np.linalg.norm(black[1] - black[0]), np.linalg.norm(black[3] - black[0]))
-        cell_px = 2
-        while cell_px < 64 and cell_px < side_px / self._cells:
-            cell_px *= 2
-        tex = self._texture(marker_id, cell_px)
-        n = tex.shape[0]
+        th, tw = tex.shape[:2]
         # Pixel centres sit at integer coordinates, so the texture's outer edge is at -0.5 and n-0.5.
-        src = np.float32([[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]])
+        src = np.float32([[-0.5, -0.5], [tw - 0.5, -0.5], [tw - 0.5, th - 0.5], [-0.5, th - 0.5]])
         dst = np.float32(quad - [x0, y0])
         h = cv2.getPerspectiveTransform(src, dst)
         roi = np.ascontiguousarray(image[y0:y1, x0:x1])
@@ -155,14 +286,19 @@ class CameraRenderer:
 
     # ------------------------------------------------------------------ the frame
 
+    def _camera(self, x: float, y: float, theta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For the robot at pose (x m, y m, theta rad): world_from_robot, the lens position (world)
+        and world_from_camera."""
+        c, s = math.cos(theta), math.sin(theta)
+        world_from_robot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        lens = np.array([x, y, 0.0]) + world_from_robot @ [self.mount.x, self.mount.y, self.mount.z]
+        return world_from_robot, lens, world_from_robot @ self.mount.robot_from_camera()
+
     def render(self, x: float, y: float, theta: float) -> tuple[np.ndarray, list[Visible]]:
         """One BGR frame (height x width x 3, uint8) seen from the robot at pose (x m, y m, theta rad),
         and the markers fully inside it."""
-        c, s = math.cos(theta), math.sin(theta)
-        world_from_robot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        world_from_robot, lens, world_from_camera = self._camera(x, y, theta)
         robot_origin = np.array([x, y, 0.0])
-        world_from_camera = world_from_robot @ self.mount.robot_from_camera()
-        lens = robot_origin + world_from_robot @ [self.mount.x, self.mount.y, self.mount.z]
 
         def to_camera(points_world: np.ndarray) -> np.ndarray:
             return (points_world - lens) @ world_from_camera  # row vectors: R^T (p - lens)
@@ -172,20 +308,43 @@ class CameraRenderer:
         distance = np.linalg.norm(to_lens, axis=1)
         facing = np.einsum("ij,ij->i", self._normals, to_lens) > 0
         in_front = (quiet_c[..., 2] > NEAR).all(axis=1)
+        # Boards and markers that face the lens, drawn farthest first.
+        drawn = [(float(distance[i]), "marker", int(i)) for i in np.flatnonzero(facing & in_front)]
+        boards_c = to_camera(self._board_quads)
+        board_to_lens = lens - self._board_centres
+        for i in range(len(self.world.boards)):
+            if self._board_normals[i] @ board_to_lens[i] > 0 and (boards_c[i, :, 2] > NEAR).all():
+                drawn.append((float(np.linalg.norm(board_to_lens[i])), "board", i))
 
         image = self._background.copy()
         visible: list[Visible] = []
-        for i in np.flatnonzero(facing & in_front):
+        for _, kind, i in sorted(drawn, reverse=True):
+            if kind == "board":
+                self._draw_board(image, i, self._project(boards_c[i]))
+                continue
             marker = self.world.markers[i]
-            quad, black = self._project(quiet_c[i]), self._project(black_c[i])
-            self._draw(image, marker.id, quad, black)
+            self._draw(image, marker.id, self._project(quiet_c[i]), self._project(black_c[i]))
+            black = self._frame_pixels(black_c[i])
             inside = ((black >= 0) & (black <= [self.width - 1, self.height - 1])).all()
             if inside:
                 rng, bearing = range_bearing(world_from_robot.T @ (self._centres[i] - robot_origin))
                 cos_inc = float(self._normals[i] @ to_lens[i]) / distance[i]
                 visible.append(Visible(marker.id, rng, bearing, float(distance[i]),
                                        math.acos(min(1.0, cos_inc)), black))
+        if self._lens_maps is not None:
+            image = cv2.remap(image, *self._lens_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return self._finish(image), visible
+
+    def board_corners(self, x: float, y: float, theta: float) -> list[np.ndarray | None]:
+        """Per board of the world: where its inner corners are in the frame seen from pose (x, y, theta),
+        ((columns-1) x (rows-1), 2) pixels row by row from its top-left; None if it faces away."""
+        _, lens, world_from_camera = self._camera(x, y, theta)
+        out: list[np.ndarray | None] = []
+        for i, board in enumerate(self.world.boards):
+            points = (board_inner_corners(board) - lens) @ world_from_camera
+            faces = self._board_normals[i] @ (lens - self._board_centres[i]) > 0
+            out.append(self._frame_pixels(points) if faces and (points[:, 2] > NEAR).all() else None)
+        return out
 
     def _finish(self, image: np.ndarray) -> np.ndarray:
         """Lighting change, sensor noise and blur, then grey → BGR like a colour camera's output."""

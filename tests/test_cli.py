@@ -53,7 +53,9 @@ def test_pub_checks_the_schema_before_sending(robot: Robot) -> None:
 def test_status_query_and_echo_log_against_a_service(robot: Robot) -> None:
     log = subprocess.Popen([*ICEFLOE, "echo", "log", "--duration", "20", "--config", str(robot.config_path)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    assert "no publisher is declared" in log.stderr.readline()  # it listens (and nothing publishes yet)
+    # it listens, and says why nothing comes yet: no service of this robot is alive, nobody publishes on log
+    assert "no service of robot" in log.stderr.readline()
+    assert "no publisher is declared" in log.stderr.readline()
     info = robot.start("info")
     assert "info" in wait_alive(robot, "info")
     answer = icefloe(robot, "query", "info")

@@ -7,13 +7,17 @@ stand-in robot lives on this test's event loop; a student's script just calls it
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
 from conftest import free_port
 from webapi_helpers import board, jpeg, wait_for
 
+from icefloe import client
 from icefloe.client import AsyncRobot, Encoders, Robot
 from icefloe.errors import NotReachable
 from icefloe.schemas import keys
@@ -140,3 +144,67 @@ async def test_async_robot_sees_the_bus(robot):
 
         r.on_pose(on_pose)
         await wait_for(lambda: len(got) >= 2)
+
+
+async def test_hostile_button_messages_cost_a_bounded_number_of_calls(robot):
+    """A flood, absurd counts, unknown buttons, garbage: the client stays bounded and keeps going."""
+    async with robot.node("board") as node, AsyncRobot(config=robot.config) as r:
+        calls: list[int] = []
+        r.buttons["S4"].when_pressed = lambda b: calls.append(b.number)
+        with pytest.raises(ValueError, match=r"must take no argument, or one \(the button\)"):
+            r.buttons["S4"].when_pressed = lambda a, b: None
+        with pytest.raises(ValueError, match="button: expected one of S1, S2, S3, S4, SDN"):
+            r.buttons["S9"]
+        pub = node.publisher(keys.BUTTONS)
+        await asyncio.sleep(0.5)  # the client's subscriber is known to the router
+        pub.put(m.Buttons(stamp=0, button=3, presses=1_000_000))  # one message, a million presses
+        pub.put(m.Buttons(stamp=0, button=3, presses=-5))
+        pub.put(m.Buttons(stamp=0, button=77))
+        pub.put(m.Buttons(stamp=0, button=3, event="release"))  # S4 cannot tell releases: ignored
+        node.session.put(node.key(keys.BUTTONS), b"\x93garbage")
+        pub.put(m.Buttons(stamp=0, button=3))
+        await wait_for(lambda: len(calls) == 17)
+        await asyncio.sleep(0.3)
+        assert len(calls) == 17  # 16 for the million, 1 for the last press
+        assert r.buttons["S4"].presses == 1_000_001 and r.buttons["S4"].is_pressed is None
+        with pytest.raises(ValueError, match=r"blink: one number of seconds, or two \(lit, dark\)"):
+            await r.led(2, blink=(0.1,))
+        with pytest.raises(ValueError, match="times: expected a whole number >= 1"):
+            await r.led(2, blink=0.1, times=0)
+
+
+async def test_a_slow_callback_on_the_blocking_robot_drops_events_not_memory(robot, monkeypatch, caplog):
+    monkeypatch.setattr(client, "MAX_PENDING_CALLS", 3)
+    async with board(robot) as b:
+        b.pose = m.Pose(stamp=0, x=0.5, y=0.0, theta=0.0)
+        r = await asyncio.to_thread(Robot, config=robot.config)
+        try:
+            threads: list[str] = []
+
+            def slow(_pose: m.Pose) -> None:
+                threads.append(threading.current_thread().name)
+                time.sleep(0.3)
+
+            with caplog.at_level(logging.WARNING, logger="icefloe.client"):
+                r.on_pose(slow)
+                await asyncio.sleep(1.5)  # 30 poses for a callback that takes 5
+                assert r._pending.get(slow, 0) <= 3
+            assert any("events behind: newer ones dropped" in rec.getMessage() for rec in caplog.records)
+            assert threads and set(threads) == {"icefloe-callbacks_0"}
+            assert (await asyncio.to_thread(lambda: r.pose)).x == 0.5  # state still comes in
+        finally:
+            await asyncio.to_thread(r.close)
+
+
+async def test_a_bad_argument_to_the_blocking_robot_sends_nothing_not_even_a_stop(robot):
+    async with board(robot) as b:
+        r = await asyncio.to_thread(Robot, config=robot.config)
+        try:
+            with pytest.raises(ValueError, match=r"left: 5\.0 m/s is beyond this robot's max_wheel_speed"):
+                await asyncio.to_thread(r.set_velocity, 5, 5, 1)
+            with pytest.raises(ValueError, match="distance: expected a number"):
+                await asyncio.to_thread(r.forward, "far")
+            await asyncio.sleep(0.5)
+            assert b.raw == []
+        finally:
+            await asyncio.to_thread(r.close)

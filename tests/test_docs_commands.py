@@ -51,7 +51,7 @@ DIRECTIVE = re.compile(r"<!--\s*doc-test:\s*(.*?)\s*-->")
 LOOKS_LIKE_A_COMMAND = re.compile(r"^\s*(\$ |\.venv/bin/|\./(deploy|tests)/|python3? -m |icefloe [a-z])")
 FINITE_TIMEOUT_S = 120.0
 STARTUP_TIMEOUT_S = 60.0
-SIMULATED = ("sim", "sim-icoboard")
+SIMULATED = ("sim", "sim-icoboard", "sim-calibration")
 """The shipped robot configs a documented command may run: each gets a port of the test's own."""
 
 

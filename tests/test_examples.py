@@ -85,6 +85,33 @@ async def test_drive_square_ends_where_it_started(robot):
         assert math.hypot(end.x - start.x, end.y - start.y) < 0.05, (start, end, out)
 
 
+@pytest.mark.timeout(300)  # ~20 s alone; a loaded machine starts and drives the stack much slower
+async def test_press_and_go_waits_for_s4_and_comes_back(robot):
+    start_sim_robot(robot, "info")
+    async with robot.node("tester") as node:
+        dip = node.subscribe(keys.DIP)  # the robot is up: its board has been read
+        await asyncio.wait_for(anext(dip), 60)
+        example = robot.start_module("examples.press_and_go", name="press_and_go")
+        truths = Truths(node)
+        await wait_for(lambda: "press S4 to start" in example.output or not example.alive(), timeout=60)
+        assert "press S4 to start" in example.output, example.output
+        await asyncio.sleep(1.0)
+        assert abs(truths.last.x) < 1e-3, "it moved before the button"
+        start = truths.last
+        await node.query(keys.SIM_CONTROL, m.SimControl(action="press_button", button=3), timeout=5)
+        await wait_for(lambda: "back:" in example.output or not example.alive(), timeout=120)
+        assert "back:" in example.output, example.output
+        await asyncio.sleep(0.5)
+        truths.close()
+        farthest = max(math.hypot(t.x - start.x, t.y - start.y) for t in truths.samples)
+        end = truths.last
+        assert "DIP switches: 0001" in example.output and "S4 pressed (1 so far)" in example.output
+        assert farthest == pytest.approx(0.3, abs=0.03), example.output
+        assert math.hypot(end.x - start.x, end.y - start.y) < 0.05, example.output
+    await wait_for(lambda: not example.alive(), timeout=30)  # it ends by itself
+    assert example.stop() == 0, example.output
+
+
 async def test_raw_zenoh_service_drives_on_request(robot):
     start_sim_robot(robot, "info")
     service = robot.start_module("examples.raw_zenoh_service", name="raw_zenoh_service")

@@ -105,6 +105,20 @@ def test_two_separate_holds_are_two_presses() -> None:
     assert replay(button, edges, until=3.0) == [1.5, 2.5]
 
 
+def test_settled_changes_are_the_presses_and_releases_without_bounces() -> None:
+    button = HoldDetector(hold_s=0.5, debounce_s=0.02)
+    edges = [(1.000, 0), (1.003, 1), (1.006, 0), (1.200, 1), (1.204, 0), (1.207, 1), (2.0, 0), (2.01, 1)]
+    changes, pending, t = [], sorted(edges), 0.0
+    while t <= 3.0:
+        while pending and pending[0][0] <= t:
+            button.edge(pending.pop(0)[1], t)
+        if (level := button.settled_change(t)) is not None:
+            changes.append((round(t, 3), level))
+        t = round(t + 0.001, 6)
+    # A press 20 ms after its last bounce, a release 20 ms after its last; a 10 ms blip is nothing.
+    assert changes == [(1.026, 0), (1.227, 1)]
+
+
 def test_request_line_needs_its_long_hold() -> None:
     request = HoldDetector(hold_s=15.0)
     assert replay(request, [(0.0, 0), (14.0, 1)], until=20.0, step=0.01) == []

@@ -8,11 +8,12 @@ import asyncio
 import socket
 import time
 from pathlib import Path
+from typing import Any
 
 import aiohttp
 import numpy as np
 import pytest
-from conftest import wait_for
+from conftest import free_port, wait_for
 from webapi_helpers import board, sse_events, webapi, webapi_robot
 
 from icefloe.schemas import keys
@@ -200,3 +201,79 @@ async def test_a_hundred_streams_at_once_in_bounded_memory(robot):
         # Each stalled client holds at most its queue (256 kB) and what one write buffers.
         assert peak - before < 100, f"RSS grew {peak - before:.0f} MB ({before:.0f} -> {peak:.0f} MB)"
         assert http.proc.alive()
+
+
+async def test_access_control_is_zenohs_own(make_robot):
+    """On a robot with access control the bridge lets a request do what Zenoh lets its user do:
+    the guest (no login, or guest:guest) watches and asks read-only queryables; only the owner
+    publishes and commands, on this robot's own keys only; a wrong login is 401. What a refused
+    request would have sent is checked on the bus, through the robot's own router."""
+    from test_security import basic
+
+    robot = make_robot(f'[webapi]\nhost = "127.0.0.1"\nport = {free_port()}\n', access_control=True)
+    user, password = robot.config.zenoh.user, robot.config.zenoh.password
+    owner, guest = basic(user, password), basic("guest", "guest")
+    twist = '{"v": 0.1, "w": 0}'
+    async with webapi(robot) as http, robot.node("tester") as node:
+        twists = node.subscribe(keys.TWIST)
+        await asyncio.sleep(0.5)
+
+        async def send(method: str, path: str, headers: dict[str, str], body: str = "") -> tuple[int, str, Any]:
+            async with http.session.request(method, http.base + path, data=body, headers=headers) as r:
+                return r.status, r.headers.get("WWW-Authenticate", ""), await r.json()
+
+        # No login: the guest. A write asks for the owner's login (the challenge MATLAB waits for).
+        status, challenge, answer = await send("PUT", "/bus/cmd/twist", {}, twist)
+        assert status == 401 and challenge.startswith("Basic realm="), answer
+        # The guest's own login: 403 naming the key and the user.
+        for method, path in (("PUT", "/bus/cmd/twist"), ("PUT", "/bus/cmd/stop"), ("POST", "/bus/odom/reset")):
+            status, _, answer = await send(method, path, guest, twist if "twist" in path else "{}")
+            assert status == 403 and "user 'guest' may not" in answer["message"], (path, answer)
+        # A wrong password, another user: 401, nothing done.
+        for wrong in (basic(user, "x"), basic("nobody", password), {"Authorization": "Basic !!"}):
+            status, _, answer = await send("PUT", "/bus/cmd/twist", wrong, twist)
+            assert status == 401, (wrong, answer)
+        # The owner, on another robot's keys or through a wildcard: refused as Zenoh refuses it.
+        status, _, answer = await send("PUT", "/bus/icefloe/other/cmd/twist", owner, twist)
+        assert status == 403 and "icefloe/other/cmd/twist" in answer["message"], answer
+        status, _, answer = await send("POST", "/bus/icefloe/*/odom/reset", owner, "{}")
+        assert status == 403, answer
+        await asyncio.sleep(0.5)
+        assert twists.pending() == 0, "a refused request reached the bus"
+        # The guest watches: a stream through its own guest session hears the owner's PUT.
+        async with http.session.get(http.base + "/bus/cmd/twist",
+                                    headers={"Accept": "text/event-stream"}) as stream:
+            assert stream.status == 200
+            await asyncio.sleep(0.5)  # its subscriber reaches the router
+            status, _, answer = await send("PUT", "/bus/cmd/twist", owner, twist)
+            assert status == 200, answer
+            name, data = await asyncio.wait_for(anext(sse_events(stream.content)), 10)
+            assert name == "PUT" and data["value"]["v"] == 0.1
+        assert (await asyncio.wait_for(anext(twists), 5)).v == 0.1
+        # The guest lists the services (liveliness) as a guest may over Zenoh.
+        status, _, answer = await send("GET", "/bus/alive/*", guest)
+        assert status == 200 and any(s["key"].endswith("/alive/webapi") for s in answer), answer
+        # The robot's page is anyone's to load; its old forms change the robot: the owner's.
+        assert (await http.get("/"))[0] == 200
+        for path in ("/speed", "/settings", "/"):
+            async with http.session.post(http.base + path, data={"STOP": "STOP"}) as r:
+                assert r.status == 401, path
+
+
+@pytest.mark.parametrize(("message", "key_expr", "guest", "owner"), [
+    ("declare_subscriber", "icefloe/r1/cmd/twist", True, True),
+    ("declare_subscriber", "icefloe/**", True, True),
+    ("put", "icefloe/r1/cmd/twist", False, True),
+    ("put", "icefloe/*/cmd/twist", False, False),  # a wildcard reaching other robots
+    ("put", "icefloe/r1$*/cmd/twist", False, False),
+    ("put", "icefloe/r2/cmd/twist", False, False),
+    ("query", "icefloe/r1/info", True, True),  # a read-only queryable
+    ("query", "icefloe/r1/odom/reset", False, True),
+    ("liveliness_query", "icefloe/r1/alive/*", True, True),
+])
+def test_the_bridge_decides_as_the_router(message, key_expr, guest, owner):
+    """`permits` reads the very rules the router gets (deploy/zenoh/acl/, `access_control`)."""
+    from icefloe.router import access_control, permits
+
+    acl = access_control([("r1", "r1")], lab_protocols=["ws"])
+    assert (permits(acl, "guest", message, key_expr), permits(acl, "r1", message, key_expr)) == (guest, owner)

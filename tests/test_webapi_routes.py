@@ -97,6 +97,11 @@ async def test_set_velocity_holds_until_stop(robot):
         status, _, _ = await http.get("/robot/set/velocity", value="30.0,30.0")
         assert status == 200
         await wait_for(lambda: b.wheels[-1].left == pytest.approx(30 * K))
+        # Demand 100 (0.53 m/s) is beyond max_wheel_speed: hwbridge clamps it, as the old board did;
+        # the Python client would refuse it, the web API passes it on.
+        status, _, _ = await http.get("/robot/set/velocity", value="100,-100")
+        assert status == 200
+        await wait_for(lambda: b.wheels[-1].left == pytest.approx(100 * K))
         await http.get("/robot/stop")
         await wait_for(lambda: len(b.stops) == 1)
         count = len(b.wheels)

@@ -16,6 +16,9 @@ def test_the_lab_world_loads() -> None:
     assert lab.marker(1).size == 0.12 and lab.marker(99) is None
 
 
+BOARD = "columns = 10\nrows = 7\nsquare = 0.025\nx = 0.5\ny = 0.0\nz = 0.12\nyaw = 3.14\n"
+
+
 GOOD = "id = 3\nx = 1.0\ny = 0.0\nz = 0.1\nsize = 0.1\nyaw = 0.0\n"
 
 
@@ -28,6 +31,10 @@ GOOD = "id = 3\nx = 1.0\ny = 0.0\nz = 0.1\nsize = 0.1\nyaw = 0.0\n"
         (f"[[marker]]\n{GOOD.replace('id = 3', 'id = -1')}", "marker[0].id: Expected `int` >= 0"),
         (f"[[marker]]\n{GOOD}colour = 1\n", "[marker[0]]: Object contains unknown field `colour`"),
         (f"[[marker]]\n{GOOD.replace('yaw = 0.0', '')}", "marker[0]: Object missing required field `yaw`"),
+        (f"[[board]]\n{BOARD.replace('columns = 10', 'columns = 2')}", "board[0].columns: Expected `int` >= 3"),
+        (f"[[board]]\n{BOARD}kind = \"charuco\"\n", "board[0]: `marker` must be > 0 and smaller than `square`"),
+        (f"[[board]]\n{BOARD}kind = \"checkers\"\n", "board[0].kind: Invalid enum value 'checkers'"),
+        (f"[[board]]\n{BOARD.replace('square = 0.025', 'square = inf')}", "board[0]: `square` must be a finite"),
     ],
 )
 def test_bad_world_files_name_the_marker_and_key(tmp_path: Path, text: str, message: str) -> None:
@@ -37,3 +44,8 @@ def test_bad_world_files_name_the_marker_and_key(tmp_path: Path, text: str, mess
         load_world(str(path))
     assert str(err.value).startswith(f"{path}: ")
     assert message in str(err.value), str(err.value)
+
+
+def test_the_calibration_world_stands_two_boards() -> None:
+    world = load_world("calibration")
+    assert [b.kind for b in world.boards] == ["chessboard", "charuco"] and world.markers == ()

@@ -8,6 +8,8 @@
     schemas.py     schemas                             the JSON Schemas of the messages
     viz.py         viz                                 the Rerun view of robots
     gateware.py    gateware build, pins                the icoBoard's FPGA design
+    snapshot.py    snapshot                            save a frame of the robot's camera
+    calibrate.py   calibrate                           calibrate the robot's camera
     scaffold.py    new-service                         a service of your own, ready to run and test
     completion.py  completion                          shell completion (argcomplete)
 
@@ -28,7 +30,8 @@ import argcomplete
 
 from ..errors import IcefloeError
 
-VERB_MODULES = ("robot", "bus", "introspect", "teleop", "viz", "schemas", "gateware", "scaffold", "completion")
+VERB_MODULES = ("robot", "bus", "introspect", "teleop", "viz", "schemas", "gateware", "snapshot", "calibrate",
+                "scaffold", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\

@@ -6,8 +6,6 @@ import argparse
 import json
 from pathlib import Path
 
-import msgspec
-
 from .. import config as config_mod
 from ..config import RobotConfig
 from ..errors import ConfigError
@@ -37,8 +35,7 @@ def up(args: argparse.Namespace) -> int:
 
 def sim_override(path: Path, cfg: RobotConfig) -> Path:
     """A config that extends ``path`` with the simulated board (for `up --sim`)."""
-    out = cfg.runtime_dir / "sim-override.toml"
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = config_mod.private_dir(cfg.runtime_dir) / "sim-override.toml"
     services = cfg.services if "sim" in cfg.services else ["sim", *cfg.services]
     out.write_text(f'extends = "{path.resolve()}"\nservices = {json.dumps(services)}\n\n'
                    '[board]\nbackend = "sim"\nserial_port = "{run_dir}/ttyPPI"\n')
@@ -62,11 +59,11 @@ def router(args: argparse.Namespace) -> int:
     if not args.lab:
         run(router_mod.main, argv)
         return 0
-    owners = router_mod.lab_owners(Path(args.lab))
+    lab_dir = Path(args.lab)
+    router_mod.lab_owners(lab_dir)  # a bad folder: say so before anything starts
 
     async def lab(config: RobotConfig) -> None:
-        names = ", ".join(robot for robot, _, _ in owners)
-        await router_mod.serve(config, router_mod.router_config(config, owners), f"lab router for {names}")
+        await router_mod.lab_main(config, lab_dir)
 
     run(lab, argv)
     return 0
@@ -94,7 +91,7 @@ def credentials(args: argparse.Namespace) -> int:
 
 def show_config(args: argparse.Namespace) -> int:
     cfg = config_mod.load(args.config)
-    print(json.dumps(msgspec.to_builtins(cfg), indent=2))
+    print(json.dumps(config_mod.printable(cfg), indent=2))  # the password as "***"
     return 0
 
 

@@ -56,12 +56,13 @@ class SimSource:
     """Frames rendered from the latest true pose, which the service hands over with `set_truth`."""
 
     def __init__(self, config: RobotConfig) -> None:
-        from icefloe.sim.camera import CameraRenderer  # the simulator only where it is used
+        from icefloe.sim.camera import CameraRenderer, true_intrinsics  # the simulator only where it is used
         from icefloe.worldmap import load_world
 
-        from .geometry import Intrinsics, Mount
+        from .geometry import Mount
 
-        self.renderer = CameraRenderer(load_world(config.sim.world), Intrinsics.from_config(config.camera),
+        # The simulated lens is [sim.lens], not what [camera] believes: calibrating must find it.
+        self.renderer = CameraRenderer(load_world(config.sim.world), true_intrinsics(config),
                                        Mount.from_config(config.camera), config.camera.dictionary)
         self.pace = Paced(config.camera.fps)
         self._truth: m.Truth | None = None

@@ -241,6 +241,8 @@ def fast_stop(node: Node, bridge: Bridge) -> zenoh.Subscriber:
     key_expr = node.key(keys.STOP)
 
     def on_sample(sample: zenoh.Sample) -> None:
+        if not node.own_key(key_expr, str(sample.key_expr)):
+            return  # a wildcard put (icefloe/*/cmd/stop) is no command for this robot
         try:
             codec.decode(sample.payload.to_bytes(), str(sample.encoding), m.Stop, key_expr)
         except BadPayload as exc:

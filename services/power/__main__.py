@@ -4,13 +4,15 @@
 
 Reads ``hw/battery`` (raw, from hwbridge), publishes ``power/battery`` (filtered,
 with a state), watches the shutdown button and the board's request line, answers
-``power/request``, and runs the shutdown sequence (`shutdown.Shutdown`).
+``power/request``, and runs the shutdown sequence (`shutdown.Shutdown`). Short presses and
+releases of the shutdown button go out on ``io/buttons`` (button 10), for programs.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 
 from icefloe.config import Power, RobotConfig
 from icefloe.runtime import Node, Subscription, run
@@ -67,8 +69,16 @@ async def _readings(node: Node, monitor: BatteryMonitor,
             shutdown.start("critical battery")
 
 
-async def watch_lines(lines: Lines, power: Power, shutdown: Shutdown) -> None:
-    """Shutdown button (held button_hold_s) and board request line (held request_hold_s)."""
+SHUTDOWN_BUTTON = 10
+"""`Buttons.button` of the shutdown button."""
+
+
+async def watch_lines(lines: Lines, power: Power, shutdown: Shutdown,
+                      buttons: Callable[[m.Buttons], None] | None = None) -> None:
+    """Shutdown button (held button_hold_s) and board request line (held request_hold_s).
+
+    ``buttons``: called with each debounced press and release of the shutdown button
+    (published on ``io/buttons``, so programs can use it as a button too)."""
     detectors = {
         power.button_line: (HoldDetector(power.button_hold_s, power.debounce_s), "shutdown button"),
         power.request_line: (HoldDetector(power.request_hold_s, power.debounce_s), "board request"),
@@ -86,6 +96,11 @@ async def watch_lines(lines: Lines, power: Power, shutdown: Shutdown) -> None:
             for detector, reason in detectors.values():
                 if detector.poll(now):
                     shutdown.start(reason)
+            level = detectors[power.button_line][0].settled_change(now)
+            if level is not None and buttons is not None:
+                pressed = level == 0
+                buttons(m.Buttons(stamp=time.time_ns(), button=SHUTDOWN_BUTTON, presses=int(pressed),
+                                  event="press" if pressed else "release"))
 
     async def refresh() -> None:
         while True:
@@ -126,7 +141,8 @@ async def main(config: RobotConfig) -> None:
             lines.drive(config.power.ack_line, 1)
             async with asyncio.TaskGroup() as tasks:
                 tasks.create_task(watch_battery(node, config.power, readings, shutdown))
-                tasks.create_task(watch_lines(lines, config.power, shutdown))
+                tasks.create_task(watch_lines(lines, config.power, shutdown,
+                                              node.publisher(keys.BUTTONS).put))
         finally:
             lines.close()
 

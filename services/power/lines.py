@@ -33,6 +33,8 @@ class HoldDetector:
     """Time of the last edge, s."""
     presses: int = 0
     """Presses counted so far."""
+    settled: int = 1
+    """The level last reported by `settled_change`."""
     _armed: bool = True
 
     def edge(self, level: int, t: float) -> None:
@@ -54,3 +56,11 @@ class HoldDetector:
             self.presses += 1
             return True
         return False
+
+    def settled_change(self, now: float) -> int | None:
+        """The line's new level once it has kept it for ``debounce_s`` (0: pressed, 1: released),
+        reported once per change; None while it bounces or has not changed."""
+        if self.level != self.settled and now - self.last_edge >= self.debounce_s:
+            self.settled = self.level
+            return self.settled
+        return None

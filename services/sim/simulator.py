@@ -25,6 +25,9 @@ from icefloe.wire.icoboard import Descriptor
 
 log = logging.getLogger("icefloe.sim")
 
+LED_NUMBERS = ("red", "led2", "led3", "led4")
+"""The firmware's name of `Led` number 1..4 (`SimState.leds` bit 0..3)."""
+
 
 GATEWARE_CATCH_UP = 5
 """Steps the clock may run back to back to catch up, with the gateware as the board (ms)."""
@@ -96,18 +99,21 @@ class Simulator:
         if isinstance(self.board, IcoBoardSim):  # every frame, and what went wrong
             ico = self.board.model
             last, bad, trips = ico.last_frame, ico.counters.bad_frames, ico.counters.watchdog_trips
+            leds = 0
         else:  # the PenguinPi: its last good datagram, and its error count
             model = self.board.model
             frame = model.last_datagram
             last = penguinpi.encode_frame(frame.address, frame.opcode, frame.payload) if frame else b""
             bad, trips = model.errors, 0
+            leds = sum(1 << n for n, name in enumerate(LED_NUMBERS) if model.led_lit(name))
         return m.SimState(
             stamp=time.time_ns(), sim_time=self.clock.now, seed=self.world.seed,
             board=self.kind, x=x, y=y, theta=theta, duty_left=duty[0], duty_right=duty[1],
             speed_left=speeds[0], speed_right=speeds[1],
             battery_voltage=self.world.battery_voltage, battery_current=self.world.battery_current,
             last_frame=bytes(last), bad_frames=bad, watchdog_trips=trips,
-            gpio_button=self.gpio.button, gpio_request=self.gpio.request, gpio_ack=self.gpio.ack)
+            gpio_button=self.gpio.button, gpio_request=self.gpio.request, gpio_ack=self.gpio.ack,
+            leds=leds)
 
     # ------------------------------------------------------------------ handles
 

@@ -180,6 +180,9 @@ class Caller:
     """The Zenoh user ("" on a robot without access control)."""
     session: zenoh.Session
     hub: Hub
+    challenge: dict[str, str] | None = None
+    """Set when the request gave no login: a refusal is then 401 with this challenge (the owner
+    may log in), not 403."""
 
 
 Order = Callable[[m.Message], m.Message]
@@ -231,6 +234,9 @@ class Bridge:
     def check(self, who: Caller, message: str, key_expr: str) -> None:
         """403 unless ``who`` may send a ``message`` on ``key_expr`` (the router's own decision)."""
         if not self.allowed(who, message, key_expr):
+            if who.challenge is not None:
+                raise HttpError(401, f"{key_expr}: to {message.replace('_', ' ')} here, log in as the robot's "
+                                     "owner (HTTP Basic)", who.challenge)
             whom = f"user {who.user!r}" if who.user else "you"
             raise HttpError(403, f"{key_expr}: {whom} may not {message.replace('_', ' ')} here "
                                  "(only the robot's owner commands it)")

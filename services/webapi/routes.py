@@ -11,21 +11,26 @@ answers 503 with a message naming the bus key.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+import zenoh
 from aiohttp import web
 
 from icefloe.client import AsyncRobot
+from icefloe.credentials import GUEST_USER
 from icefloe.errors import NotReachable
+from icefloe.router import access_control, permits
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
 from . import params
-from .bus import Bridge, Caller, render
+from .auth import Login, owner_only
+from .bus import Bridge, Caller, HttpError, render
 from .fanout import Hub
 from .pages import Pages
 from .params import InvalidCommand
@@ -67,7 +72,7 @@ async def errors(request: web.Request, handler: Handler) -> web.StreamResponse:
 class Api:
     """The state the routes share: the robot on the bus and the PenguinPi extras."""
 
-    def __init__(self, robot: AsyncRobot) -> None:
+    def __init__(self, robot: AsyncRobot, guest: zenoh.Session | None = None) -> None:
         self.robot = robot
         self.node: Node = robot.node
         config = robot.config
@@ -86,16 +91,37 @@ class Api:
         self._screen = self.node.publisher(keys.BOARD_SCREEN)
         self._ledarray = self.node.publisher(keys.LEDARRAY)
         self._leds = self.node.publisher(keys.LEDS)
-        self.hub = Hub(self.node.session, render)
-        """The bus streams of the HTTP bridge (`bus`), shared by its clients."""
-        self.hub.pin(self.node.key(keys.LOG), history=LOG_HISTORY)  # the page shows the last lines
-        self._anyone = Caller("", self.node.session, self.hub)
-        self.bridge = Bridge(robot.name, self.caller, query_timeout=robot.timeout)
+        zenoh = config.zenoh
+        self.login = Login(zenoh.user, zenoh.password, robot.name) if zenoh.access_control else None
+        """The owner's login on a robot with access control (`auth`), else None: anyone may do anything."""
+        self._callers: dict[str, Caller] = {}
+        """Who HTTP bridge requests act as, by Zenoh user: each with a session logged in as that
+        user, so the robot's router checks what they do too; the owner's is the service's own."""
+        for user, session in ((zenoh.user, self.node.session), (GUEST_USER, guest)):
+            if session is not None:
+                self._callers[user] = Caller(user, session, Hub(session, render))
+                # The page shows the last lines of the log.
+                self._callers[user].hub.pin(self.node.key(keys.LOG), history=LOG_HISTORY)
+        self.acl = access_control([(robot.name, zenoh.user)]) if self.login is not None else None
+        """Zenoh's rules, as the robot's router has them (`icefloe.router.access_control`)."""
+        self.bridge = Bridge(robot.name, self.caller, self.allowed, query_timeout=robot.timeout)
         self.pages = Pages(self)
 
     def caller(self, request: web.Request) -> Caller:
-        """Who an HTTP bridge request is from (on a robot without access control: anyone)."""
-        return self._anyone
+        """Who an HTTP bridge request is from: on a robot with access control the user it logs in
+        as (no login: the guest), 401 for a wrong login; on a robot without, anyone."""
+        if self.login is None:
+            return self._callers[self.robot.config.zenoh.user]
+        user = self.login.user_of(request)
+        if user is None:
+            raise HttpError(401, f"wrong user or password for robot {self.robot.name}", self.login.challenge)
+        if "Authorization" not in request.headers:
+            return dataclasses.replace(self._callers[user], challenge=self.login.challenge)
+        return self._callers[user]
+
+    def allowed(self, who: Caller, message: str, key_expr: str) -> bool:
+        """Zenoh's decision for ``who`` sending ``message`` on ``key_expr`` (`icefloe.router.permits`)."""
+        return self.acl is None or permits(self.acl, who.user, message, key_expr)
 
     async def follow(self) -> None:
         """Keep the DIP switch and count S4 presses (run as a task)."""
@@ -273,28 +299,44 @@ class Api:
             self.streams.discard(task)
         return response
 
-    def app(self) -> web.Application:
-        app = web.Application(middlewares=[errors])
-        routes = {
+    def commands(self) -> dict[str, Handler]:
+        """Routes that change something on the robot (or, for the button, reset a count):
+        only the robot's owner may call them when the robot has access control (`auth`)."""
+        return {
             "/robot/set/velocity": self.set_velocity,
             "/robot/stop": self.stop,
-            "/robot/get/encoder": self.get_encoder,
             "/robot/hw/reset": self.hw_reset,
             "/robot/pose/reset": self.pose_reset,
-            "/motor/get/encoder": self.motor_encoder,
             "/motor/set/velocity": self.motor_velocity,
-            "/battery/get/voltage": self.voltage,
-            "/battery/get/current": self.current,
-            "/hat/dip/get": self.dip_get,
-            "/hat/button/get": self.button_get,
+            "/hat/button/get": self.button_get,  # reading resets the count: a guest would eat the presses
             "/hat/ledarray/set": self.ledarray_set,
             "/hat/screen/set": self.screen_set,
             "/hat/screen/print": self.screen_print,
             "/led/set/state": self.led_state,
             "/led/set/count": self.led_count,
+        }
+
+    def reads(self) -> dict[str, Handler]:
+        """Routes that only read: open to anyone, as the robot's state is to Zenoh's guest."""
+        return {
+            "/robot/get/encoder": self.get_encoder,
+            "/motor/get/encoder": self.motor_encoder,
+            "/battery/get/voltage": self.voltage,
+            "/battery/get/current": self.current,
+            "/hat/dip/get": self.dip_get,
             "/camera/get": self.camera,
         }
-        for path, handler in routes.items():
+
+    def app(self) -> web.Application:
+        """The routes; with access control, the commands need the robot's own user and password,
+        and the HTTP bridge asks Zenoh's rules for the user a request logs in as."""
+        middlewares = [errors]
+        if self.login is not None:
+            commands, forms = set(self.commands()), self.pages.commands()
+            middlewares.append(owner_only(
+                lambda r: r.path in commands or (r.method == "POST" and r.path in forms), self.login))
+        app = web.Application(middlewares=middlewares)
+        for path, handler in {**self.commands(), **self.reads()}.items():
             app.router.add_get(path, handler)
         self.bridge.routes(app)
         self.pages.routes(app)
@@ -305,4 +347,5 @@ class Api:
         for task in list(self.streams):
             task.cancel()
         await self.bridge.close()
-        self.hub.close()
+        for caller in self._callers.values():
+            caller.hub.close()
