@@ -249,7 +249,7 @@ class Bridge:
     def preflight(self, request: web.Request) -> web.Response:
         return self.cors(web.Response(status=204, headers={
             "Access-Control-Allow-Methods": "GET, POST, PUT",
-            "Access-Control-Allow-Headers": "Content-Type, Accept",
+            "Access-Control-Allow-Headers": "Content-Type, Accept, Authorization",
             "Access-Control-Max-Age": "600"}), request)
 
     # ------------------------------------------------------------------ reading
