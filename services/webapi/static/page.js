@@ -242,8 +242,9 @@ const drive = {
     if (this.inFlight >= 2) return; // the bridge is slow: never pile up old commands
     this.inFlight += 1;
     put("cmd/twist", twist)
-      .then(() => this.show(`driving: v ${twist.v.toFixed(2)} m/s, w ${twist.w.toFixed(2)} rad/s`))
-      .catch((error) => this.show(`not driving: ${error.message}`))
+      // A twist answered after the stop must not say "driving" over "stopped".
+      .then(() => this.timer !== null && this.show(`driving: v ${twist.v.toFixed(2)} m/s, w ${twist.w.toFixed(2)} rad/s`))
+      .catch((error) => this.timer !== null && this.show(`not driving: ${error.message}`))
       .finally(() => (this.inFlight -= 1));
   },
 
