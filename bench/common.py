@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -21,3 +22,10 @@ def robot_config(folder: Path, name: str, extra_toml: str = "") -> Path:
     path.write_text(f'extends = "{ROOT / "deploy/robots/sim.toml"}"\nname = "{name}"\nrun_dir = "{folder}/run"\n'
                     f'{extra_toml}\n[zenoh]\nlisten = ["{endpoint}"]\nconnect = ["{endpoint}"]\n')
     return path
+
+
+def read_state(shared) -> dict:  # type: ignore[no-untyped-def]
+    """hwbridge's cycle state, read again until no write is in progress (`Shared.read_state`)."""
+    while (state := shared.read_state()) is None:
+        time.sleep(0.001)
+    return state

@@ -45,7 +45,7 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
-from common import robot_config
+from common import read_state, robot_config
 
 ROOT = Path(__file__).resolve().parent.parent
 SLOTS = 1 << 17
@@ -200,13 +200,6 @@ def parse_cyclictest(text: str) -> dict[str, float]:
 
 
 # --------------------------------------------------------------------------- main
-
-
-def read_state(shared) -> dict:
-    """The cycle's state, read again until no write is in progress (`Shared.read_state`)."""
-    while (state := shared.read_state()) is None:
-        time.sleep(0.001)
-    return state
 
 
 async def measure(config_path: Path, args: argparse.Namespace, rec: SimpleNamespace):

@@ -21,6 +21,9 @@ SPEED = 0.20
 """Forward speed of both wheels, m/s."""
 STEER = 0.3
 """Wheel speed difference per radian of bearing to the target, (m/s)/rad."""
+MAX_STEER = 0.15
+"""Largest steering difference, m/s: SPEED + MAX_STEER stays within the robot's max_wheel_speed
+(0.5 m/s; set_velocity raises ValueError beyond it) however far off the bearing is."""
 TURN = 0.10
 """Wheel speed when turning on the spot, m/s (1.3 rad/s with a 156 mm track)."""
 CREEP = 0.04
@@ -59,6 +62,7 @@ def drive_to(robot: Robot, x: float, y: float) -> None:
             break
         if ahead > CREEP_DISTANCE:
             steer = STEER * angle_to(math.atan2(dy, dx), here.theta)
+            steer = max(-MAX_STEER, min(MAX_STEER, steer))
             robot.set_velocity(SPEED - steer, SPEED + steer)
         else:  # nearly there: the bearing of a close point swings wildly, go straight
             robot.set_velocity(CREEP, CREEP)

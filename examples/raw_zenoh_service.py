@@ -19,7 +19,11 @@ What it uses from the robot (schemas in schemas/json/, keys in each schema's
 * query  ``icefloe/<robot>/info``       -> RobotInfo (wheel size, counts per turn)
 * sub    ``icefloe/<robot>/hw/wheels``  <- Wheels, MessagePack
 * pub    ``icefloe/<robot>/cmd/twist``  -> Twist, sent as JSON (every command key takes JSON too)
-* pub    ``icefloe/<robot>/cmd/stop``   -> Stop, an empty JSON object
+* pub    ``icefloe/<robot>/cmd/stop``   -> Stop, a JSON object with no fields but the three below
+
+Every command also says who sent it (``sender``), its number (``seq``) and when it
+was issued (``stamp``): optional, but with them the robot puts our stop after the
+twists we sent before it, even when the stop overtakes them on the way.
 * sub    ``icefloe/<robot>/student/forward`` <- our own key: JSON {"distance": metres}
 
 Zenoh calls us back on its own threads, so callbacks only hand data to the main
@@ -29,6 +33,7 @@ thread (a queue, or a lock-protected variable); the main thread does the work.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import logging
 import math
@@ -201,6 +206,13 @@ def main() -> None:
     # "I am running": `icefloe status` lists the services that hold such a token.
     alive = session.liveliness().declare_token(f"{prefix}/alive/{os.environ.get('ICEFLOE_SERVICE', 'forward')}")
     json_encoding = zenoh.Encoding("application/json")
+    # Who we are, our commands' numbers, and a clock that never jumps back (the wall clock
+    # once, then the monotonic clock): the robot learns how far it is off its own.
+    sender, numbers = str(session.zid()), itertools.count(1)
+    wall0, mono0 = time.time_ns(), time.monotonic_ns()
+
+    def issued() -> dict[str, Any]:
+        return {"sender": sender, "seq": next(numbers), "stamp": wall0 + time.monotonic_ns() - mono0}
 
     def travelled(start: dict[str, Any]) -> float:
         with lock:
@@ -222,13 +234,13 @@ def main() -> None:
         log.info("driving %.3f m", distance)
         while (left := abs(distance) - abs(travelled(start))) > 0 and not stopping.is_set():
             speed = SPEED if left > CREEP_DISTANCE else CREEP
-            command = twist.json(v=math.copysign(speed, distance), w=0.0)
+            command = twist.json(v=math.copysign(speed, distance), w=0.0, **issued())
             session.put(f"{prefix}/cmd/twist", command, encoding=json_encoding)
             time.sleep(PERIOD if left > CREEP_DISTANCE else PERIOD / 5)
-        session.put(f"{prefix}/cmd/stop", stop.json(), encoding=json_encoding)
+        session.put(f"{prefix}/cmd/stop", stop.json(**issued()), encoding=json_encoding)
         log.info("done: %.3f m by the encoders", travelled(start))
 
-    session.put(f"{prefix}/cmd/stop", stop.json(), encoding=json_encoding)  # never leave it moving
+    session.put(f"{prefix}/cmd/stop", stop.json(**issued()), encoding=json_encoding)  # never leave it moving
     for sub in subs:
         sub.undeclare()
     alive.undeclare()

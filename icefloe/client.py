@@ -14,9 +14,15 @@ is the same robot for ``asyncio`` code (``async with AsyncRobot(...) as robot``)
 Both are thin: every call is one message on the bus, listed in each docstring, so
 a student can later do the same with raw Zenoh in any language.
 
+Every command carries who sent it (``sender``: this client's Zenoh session id),
+its number (``seq``) and when it was issued (``stamp``), so that the robot puts a
+stop and the commands around it in the order they were issued, whatever path
+each took on the bus (docs/hwbridge.md, "Which command wins").
+
 Errors: `icefloe.errors.NotReachable` (naming the endpoint or key) when the robot
-or one of its services does not answer in time; `ValueError` naming the argument
-for a bad argument (nothing is sent then).
+or one of its services does not answer in time; `icefloe.errors.NotConfirmed`
+when the robot could not confirm a stop; `ValueError` naming the argument for a
+bad argument (nothing is sent then).
 """
 
 from __future__ import annotations
@@ -43,17 +49,25 @@ import zenoh
 from . import config as config_mod
 from .config import RobotConfig
 from .credentials import read as read_credentials
-from .errors import ConfigError, IcefloeError, MotionStopped, MotionTimeout, NotReachable
+from .errors import BadPayload, ConfigError, IcefloeError, MotionStopped, MotionTimeout, NotConfirmed, NotReachable
 from .runtime import LimitedLog, Node, open_session, why_unreachable
 from .schemas import keys
 from .schemas import messages as m
 from .schemas.keys import Topic
 
 T = TypeVar("T")
+C = TypeVar("C", bound=m.Command)
+
+CONFIRM_WAIT = 3.0
+"""How long hwbridge tries to confirm a stop before it answers that it could not, s: `AsyncRobot.stop`
+waits that much longer than its ``timeout``, so that a slow confirmation on a busy robot still
+arrives, and a failed one arrives with hwbridge's reason."""
 
 CONNECT_TIMEOUT = 1.0
 """How long `AsyncRobot.open` retries a router that does not answer, by default, s: long enough
 for a router that is starting, short enough that a script run without a robot says so at once."""
+WAITING_NOTICE_S = 30.0
+"""How often a program waiting for its router says so, s (the first time after 1 s)."""
 
 
 class Encoders(NamedTuple):
@@ -418,17 +432,24 @@ class AsyncRobot:
         endpoints = ", ".join(self.config.zenoh.connect)
         if connect_timeout is None:
             connect_timeout = min(self.timeout, CONNECT_TIMEOUT)
-        deadline = time.monotonic() + connect_timeout
+        start = time.monotonic()
+        deadline, notice_at = start + connect_timeout, start + 1.0
         while True:  # the router may be starting (robot just booted): retry until the deadline
             try:
                 probe = await open_session(self.config, retry=False)
                 probe.close()
                 break
             except NotReachable:
-                if time.monotonic() > deadline:
+                now = time.monotonic()
+                if now > deadline:
                     why = why_unreachable(self.config, self.config.zenoh.connect)
                     raise NotReachable(f"robot {self.name!r}: no Zenoh router answers at {endpoints} "
                                        f"within {connect_timeout} s: {why}") from None
+                if now >= notice_at:  # a service waiting for good says so, now and then
+                    notice_at = now + WAITING_NOTICE_S
+                    logging.getLogger("icefloe").warning(
+                        "waiting for the Zenoh router of robot %r at %s: %s", self.name, endpoints,
+                        why_unreachable(self.config, self.config.zenoh.connect))
                 await asyncio.sleep(0.2)
         await self.node.__aenter__()  # the router answers: this opens at once
         self._wheels = self.node.publisher(keys.WHEELS_CMD)
@@ -457,7 +478,7 @@ class AsyncRobot:
             self.leds.stop_blinking()
         if self._moved and hasattr(self, "_stop"):
             self._end_hold()
-            self._stop.put(m.Stop())
+            self._stop.put(self.command(m.Stop))
         for task in self._tasks:
             task.cancel()
         self._end_hold()
@@ -640,6 +661,11 @@ class AsyncRobot:
 
     # ------------------------------------------------------------------ commands
 
+    def command(self, kind: type[C], **fields: Any) -> C:
+        """A command message of type ``kind`` (`m.Twist`, `m.Stop`, ...) with ``fields``, numbered
+        and stamped as this client's next command. For publishing a command yourself."""
+        return self.node.command(kind, **fields)
+
     async def set_velocity(self, left: float, right: float, duration: float | None = None,
                            accel: float | None = None) -> m.MotionDone | None:
         """Drive the wheels at ``left``, ``right`` rim speeds (m/s, positive forward).
@@ -659,7 +685,7 @@ class AsyncRobot:
             self._end_hold()
             self._moved = True
             if left == 0 and right == 0:
-                self._wheels.put(m.WheelSpeeds(left=0.0, right=0.0))
+                self._wheels.put(self.command(m.WheelSpeeds, left=0.0, right=0.0))
             else:
                 self._hold = asyncio.create_task(self._hold_speeds(left, right))
             return None
@@ -674,16 +700,15 @@ class AsyncRobot:
                              f"duration ({duration} s)")
         self._end_hold()
         self._moved = True
-        motion = m.Motion(left=left, right=right, duration=duration, accel=accel)
+        motion = self.command(m.Motion, left=left, right=right, duration=duration, accel=accel)
         # The motion lasts duration + accel; allow for the bus and a busy robot.
         with self._stop_unless_done():
             return await self.node.query(keys.MOTION, motion, timeout=duration + accel + self.timeout)
 
     async def _hold_speeds(self, left: float, right: float) -> None:
         period = self.config.hwbridge.deadman_s / 4
-        command = m.WheelSpeeds(left=left, right=right)
         while True:
-            self._wheels.put(command)
+            self._wheels.put(self.command(m.WheelSpeeds, left=left, right=right))
             await asyncio.sleep(period)
 
     def _end_hold(self, why: str = "another command from this program") -> None:
@@ -695,11 +720,10 @@ class AsyncRobot:
             self._moving.cut = why
 
     def _halt(self) -> None:
-        """Zero wheel speeds, then ``cmd/stop``: the stop travels at Zenoh's real-time priority and
-        can overtake a ``cmd/wheels`` of ours still on its way, which would then set the wheels going
-        again until the deadman; the zero speeds queue behind that one and win in either order."""
-        self._wheels.put(m.WheelSpeeds(left=0.0, right=0.0))
-        self._stop.put(m.Stop())
+        """``cmd/stop``, numbered after every command this client sent: it travels at Zenoh's
+        real-time priority and can overtake a ``cmd/wheels`` of ours still on its way, but
+        hwbridge refuses that older command when it arrives (docs/hwbridge.md, which command wins)."""
+        self._stop.put(self.command(m.Stop))
 
     @contextlib.contextmanager
     def _stop_unless_done(self) -> Iterator[None]:
@@ -711,10 +735,24 @@ class AsyncRobot:
             self._halt()
             raise
 
-    async def stop(self) -> None:
-        """Stop the wheels now (``cmd/stop``); also ends a held velocity or a timed motion."""
+    async def stop(self, confirm: bool = True) -> m.Wheels | None:
+        """Stop the wheels now (``cmd/stop``); also ends a held velocity or a timed motion.
+
+        With ``confirm`` (the default) it then asks hwbridge (``cmd/halt`` with ``rest =
+        False``, the same stop) and returns once the board runs zero duty with its
+        controller cleared, with the wheel state at that moment; `NotConfirmed` if
+        hwbridge could not confirm it, `NotReachable` if hwbridge does not answer.
+        """
         self._end_hold("stop()")
-        self._stop.put(m.Stop())
+        stop = self.command(m.Stop)
+        self._stop.put(stop)
+        if not confirm:
+            return None
+        halt = m.Halt(sender=stop.sender, seq=stop.seq, stamp=stop.stamp, rest=False)
+        try:
+            return await self.node.query(keys.HALT, halt, timeout=self.timeout + CONFIRM_WAIT)
+        except BadPayload as exc:  # hwbridge's answer: why it could not confirm
+            raise NotConfirmed(str(exc)) from None
 
     async def reset_pose(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> m.Pose:
         """Reset the odometry pose (``odom/reset`` query) to x, y (m), theta (rad); returns it."""
@@ -858,7 +896,8 @@ class AsyncRobot:
                     break
                 rim = direction * min(top, max(CREEP_SPEED, rest / SLOW_DOWN_S))
                 steer = goal.steer(pose)
-                self._wheels.put(m.WheelSpeeds(left=goal.wheels[0] * rim - steer, right=goal.wheels[1] * rim + steer))
+                self._wheels.put(self.command(m.WheelSpeeds, left=goal.wheels[0] * rim - steer,
+                                              right=goal.wheels[1] * rim + steer))
             self._halt()
             stopped_at, speed_at = goal.progress(pose), goal.rim_speed(pose)
             for _ in range(int(2.0 / 0.02)):  # at rest within ~2 s (odometry comes at 50 Hz)
@@ -1171,9 +1210,10 @@ class Robot:
         """
         self._call(self._r.led(led, on, blink=blink, times=times))
 
-    def stop(self) -> None:
-        """Stop the wheels now."""
-        self._call(self._r.stop())
+    def stop(self, confirm: bool = True) -> m.Wheels | None:
+        """Stop the wheels now; see `AsyncRobot.stop` (by default it returns once the robot
+        confirmed the stop)."""
+        return self._call(self._r.stop(confirm))
 
     def reset_pose(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> m.Pose:
         """Reset the odometry pose to x, y (m), theta (rad)."""

@@ -50,6 +50,19 @@ class NotReachable(IcefloeError):
     """A robot (its Zenoh router or a queryable) did not answer in time."""
 
 
+class NotConfirmed(IcefloeError):
+    """hwbridge could not confirm that the wheels stopped: the board did not answer in time,
+    or a newer motion command released the stop first. The message says which."""
+
+
+class BadRecording(IcefloeError):
+    """An MCAP recording cannot be read, or a channel of it cannot be replayed.
+
+    The message names the file and, where it is about one, the channel's topic, e.g.
+    ``run.mcap: not an MCAP file (it starts with b'PK\\x03\\x04')``.
+    """
+
+
 class MotionError(IcefloeError):
     """A closed-loop motion (`Robot.forward`, `Robot.turn`) did not get there; the robot is stopped."""
 

@@ -56,10 +56,11 @@ from .credentials import GUEST_PASSWORD, GUEST_USER
 from .errors import BadPayload, ConfigError, IcefloeError, NotReachable
 from .schemas import codec, keys
 from .schemas.keys import Topic
-from .schemas.messages import Log, Message
+from .schemas.messages import Command, Log, Message
 
 T = TypeVar("T", bound=Message)
 T2 = TypeVar("T2")
+C = TypeVar("C", bound=Command)
 MSGPACK = zenoh.Encoding(codec.MSGPACK)
 JSON = zenoh.Encoding(codec.JSON)
 
@@ -299,6 +300,13 @@ def _decoder(topic: Topic) -> Callable[[RawSample], Any]:
     return decode
 
 
+def decode_query(query: zenoh.Query, kind: type[T], key_expr: str) -> T:
+    """A query's request as a ``kind`` message; `BadPayload` naming ``key_expr`` if it is not one."""
+    payload = query.payload.to_bytes() if query.payload is not None else b""
+    encoding = str(query.encoding) if query.encoding is not None else ""
+    return codec.decode(payload, encoding, kind, key_expr)
+
+
 class Node:
     """One service's connection to the bus. Use as ``async with Node(name, config) as node``."""
 
@@ -320,6 +328,11 @@ class Node:
         self._log_handler: _BusLogHandler | None = None
         self._tasks: set[asyncio.Task[Any]] = set()
         self._wildcards = LimitedLog(self.log)
+        self._seq = 0
+        # Stamps from a clock that never jumps back: the wall clock read once, then advanced by
+        # the monotonic clock (hwbridge learns its offset from the robot's clock).
+        self._wall0, self._mono0 = time.time_ns(), time.monotonic_ns()
+        self._numbering = threading.Lock()
 
     def key(self, topic: Topic | str) -> str:
         return keys.key(self.robot, topic)
@@ -335,6 +348,17 @@ class Node:
         self._wildcards.warning(f"dropped a message sent to {arrived} (for {key_expr}): a wildcard, "
                                 "not a key; messages are taken on their own key only")
         return False
+
+    def command(self, kind: type[C], **fields: Any) -> C:
+        """A command of type ``kind`` (`Twist`, `WheelSpeeds`, `Stop`, `Motion`, `Halt`) with
+        ``fields``, numbered and stamped as this session's next one: ``sender`` its Zenoh id,
+        ``seq`` one more than the last, ``stamp`` now. With these hwbridge puts a stop and the
+        motion commands around it in the order they were issued, whatever priority each took
+        (docs/hwbridge.md, "Which command wins"). Any thread may call it."""
+        with self._numbering:
+            self._seq += 1
+            seq, stamp = self._seq, self._wall0 + time.monotonic_ns() - self._mono0
+        return kind(sender=str(self.session.zid()), seq=seq, stamp=stamp, **fields)
 
     async def __aenter__(self) -> Node:
         with service_zenoh_pools() if self.one_zenoh_thread else contextlib.nullcontext():
@@ -412,9 +436,7 @@ class Node:
                 query.drop()  # no answer: a command is taken on its own key only
                 return
             try:
-                payload = query.payload.to_bytes() if query.payload is not None else b""
-                encoding = str(query.encoding) if query.encoding is not None else ""
-                request = codec.decode(payload, encoding, topic.type, key_expr)
+                request = decode_query(query, topic.type, key_expr)
                 reply = await handler(request)
                 query.reply(key_expr, codec.encode(reply), encoding=MSGPACK)
             except BadPayload as exc:

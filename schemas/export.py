@@ -24,10 +24,12 @@ JSON_DIR = Path(__file__).resolve().parent / "json"
 
 
 def message_types() -> list[type[messages.Message]]:
-    """Every concrete message Struct in messages.py, in source order."""
+    """Every concrete message Struct in messages.py, in source order (not the bases
+    `Message` and `Command`)."""
     return [
         obj for obj in vars(messages).values()
-        if isinstance(obj, type) and issubclass(obj, messages.Message) and obj is not messages.Message
+        if isinstance(obj, type) and issubclass(obj, messages.Message)
+        and obj not in (messages.Message, messages.Command)
     ]
 
 
@@ -58,8 +60,9 @@ def schemas() -> dict[str, str]:
     for t in message_types():
         schema = msgspec.json.schema(t)
         for name, definition in schema.get("$defs", {}).items():
+            bases = [c.__name__ for c in getattr(messages, name).__mro__]  # fields a base declares
             for field, prop in definition.get("properties", {}).items():
-                doc = docs.get((name, field))
+                doc = next((docs[b, field] for b in bases if (b, field) in docs), None)
                 if doc and "description" not in prop:
                     prop["description"] = doc
         schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"

@@ -55,8 +55,9 @@ BOARD_TEXT = Topic("io/text", m.OledText, "in")
 """Raw user text for the board's own display (PenguinPi firmware user screen), via hwbridge."""
 BOARD_SCREEN = Topic("io/screen", m.OledScreen, "in")
 """Select the board's own display screen (PenguinPi HAT_SET_SCREEN), via hwbridge."""
-HALT = Topic("cmd/halt", m.Stop, "query", reply=m.Wheels)
-"""Stop the wheels and answer once they have stopped (the power service uses it before power-off)."""
+HALT = Topic("cmd/halt", m.Halt, "query", reply=m.Wheels)
+"""Stop the wheels and answer once hwbridge has confirmed it: the board at zero duty and, with
+``rest`` (the default), the wheels at rest (the power service asks before power-off)."""
 
 WHEELS = Topic("hw/wheels", m.Wheels, "out")
 LOOP = Topic("hw/loop", m.LoopStats, "out")
@@ -71,6 +72,8 @@ BATTERY = Topic("power/battery", m.Battery, "out")
 SHUTDOWN = Topic("power/shutdown", m.ShutdownNotice, "out")
 OLED_FRAME = Topic("oled/frame", m.OledFrame, "out")
 LOG = Topic("log", m.Log, "out")
+CLOCK = Topic("clock", m.Clock, "out")
+"""The time of a recording being replayed (published by ``icefloe replay --clock`` only)."""
 TRUTH = Topic("sim/truth", m.Truth, "out")
 SIM_GPIO = Topic("sim/gpio", m.GpioLevel, "out")
 """Simulated GPIO line levels; each line's driver publishes it (see `GpioLevel`)."""
@@ -88,7 +91,7 @@ TABLE: dict[str, Topic] = {
         TWIST, WHEELS_CMD, STOP, MOTION, HALT, LEDS, LEDARRAY, OLED_TEXT, OLED_SCREEN, BOARD_TEXT,
         BOARD_SCREEN,
         WHEELS, LOOP, HW_BATTERY, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
-        BATTERY, SHUTDOWN, OLED_FRAME, LOG, TRUTH, SIM_GPIO,
+        BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, TRUTH, SIM_GPIO,
         ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL,
     )
 }  # fmt: skip

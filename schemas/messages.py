@@ -20,7 +20,7 @@ Which key carries which message is in ``keys.py``.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Literal
 
 import msgspec
 
@@ -39,7 +39,27 @@ class Message(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
 # --------------------------------------------------------------------------- commands (in)
 
 
-class Twist(Message):
+class Command(Message, kw_only=True):
+    """Base of the commands that move or stop the wheels: who issued it, in which order, when.
+
+    All three fields are optional (a student's ``{"v": 0.1, "w": 0}`` still drives),
+    but only with them can hwbridge put a stop and the motion commands around it in
+    the order they were issued, whatever priority or path each took on the bus (see
+    docs/hwbridge.md, "Which command wins"). The client library, the web API and the
+    examples fill them in.
+    """
+
+    sender: Annotated[str, msgspec.Meta(max_length=64)] = ""
+    """Who issued it: any id unique to the sending program, e.g. its Zenoh session id ("" = not given)."""
+    seq: Annotated[int, msgspec.Meta(ge=0)] = 0
+    """The sender's number for this command: each command or stop it issues, on any key, has
+    a larger one than the one before (0 = not given)."""
+    stamp: Annotated[int, msgspec.Meta(ge=0)] = 0
+    """When the sender issued it, ns since the epoch on the sender's clock; that clock may be
+    off the robot's, but must not jump backwards (0 = not given; needs ``sender``)."""
+
+
+class Twist(Command):
     """``cmd/twist``: drive the robot's body. hwbridge clamps to the configured limits."""
 
     v: float
@@ -48,27 +68,36 @@ class Twist(Message):
     """Turn rate, rad/s (counter-clockwise positive)."""
 
 
-class WheelSpeeds(Message):
+class WheelSpeeds(Command):
     """``cmd/wheels``: drive each wheel directly, rim speeds in m/s (positive forward)."""
 
     left: float
     right: float
 
 
-class Stop(Message):
-    """``cmd/stop``: stop now. An empty map (or an empty payload).
+class Stop(Command):
+    """``cmd/stop``: stop now. An empty map (or an empty payload) will do.
 
-    The stop latches: the wheels stay stopped until the next twist, wheels or
-    motion command.
+    The stop latches: the wheels stay stopped until a twist, wheels or motion
+    command issued after it.
     """
 
 
-class Motion(Message):
+class Halt(Stop):
+    """``cmd/halt`` query: stop now, and answer (with `Wheels`) once hwbridge has confirmed it."""
+
+    rest: bool = True
+    """True: answer once both wheels are also at rest; False: as soon as the board runs
+    zero duty with its controller cleared."""
+
+
+class Motion(Command):
     """``cmd/motion`` query: run the wheels at fixed speeds for a time, then stop.
 
     Like the PenguinPi web API's ``/robot/set/velocity?value=L,R&time=T&accel=A``:
     speeds ramp up over ``accel`` seconds, hold, ramp down over ``accel`` seconds.
-    The query is answered with a `MotionDone` when the motion has ended.
+    The query is answered with a `MotionDone` when the motion has ended and the
+    board has confirmed the stop.
     """
 
     left: float
@@ -86,7 +115,8 @@ class MotionDone(Message):
 
     stamp: int
     completed: bool
-    """False when a stop command, the deadman or another motion cut it short."""
+    """False when a stop command, the deadman or another motion cut it short, or when it was
+    refused (issued before a stop, or older than the deadman)."""
     reason: str = ""
 
 
@@ -187,7 +217,7 @@ class LoopStats(Message):
     timeouts: int = 0
     """Requests the board did not answer in time, since start."""
     unmatched: int = 0
-    """Good frames that answered no open request (late or duplicated replies), since start."""
+    """Good frames that answered no open request (duplicates, replies nobody asked for), since start."""
     garbage_bytes: int = 0
     """Bytes that were neither a frame nor board text, since start."""
     board_errors: int = 0
@@ -198,6 +228,11 @@ class LoopStats(Message):
     state (it tries again after a back-off) plus the cycle reading the commands (that period stops
     the wheels). Above 0, one of the two was descheduled mid-write: the machine is short of CPU
     for them (no SCHED_FIFO, or many robots on one machine)."""
+    late: int = 0
+    """Replies that came after their request had timed out: counted, never used, since start."""
+    commands_dropped: int = 0
+    """Motion commands not applied because they were issued before a stop, were older than the
+    deadman or were overtaken by a newer one from the same sender, since start."""
 
 
 class BatteryReading(Message):
@@ -368,17 +403,20 @@ class SimControl(Message):
     * ``set_gpio``: drive ``line`` (22 button, 10 board request, 11 acknowledge) to ``level``.
     * ``force_descriptor``: an icoBoard v2 START reply says ``sensors``/``actuators``
       instead of the truth (-1 = the truth again).
+    * ``delay_replies``: the board's next ``count`` replies leave ``seconds`` late (and what
+      follows them waits behind them, as on a real line).
+    * ``mark``: start a new window for ``peak_duty`` (its value now is the duty applied now).
     """
 
     action: Literal["read", "set_battery", "press_button", "hold_button", "release_button",
                     "set_dip", "stall", "inject_noise", "drop_bytes", "set_gpio",
-                    "force_descriptor"] = "read"
+                    "force_descriptor", "delay_replies", "mark"] = "read"
     volts: float = 0.0
     """V."""
     button: int = 10
     """10 = the SDN shutdown button (GPIO22); 0..3 = the PenguinPi HAT's S1..S4."""
     seconds: float = 0.1
-    """How long ``press_button`` holds the button, s."""
+    """How long ``press_button`` holds the button, or how late ``delay_replies`` sends, s."""
     dip: int = 0
     wheel: Literal["left", "right"] = "left"
     on: bool = True
@@ -427,6 +465,20 @@ class SimState(Message):
     """GPIO10 level (0 = the board asks the Pi to shut down)."""
     gpio_ack: int = 0
     """GPIO11 level (1 = the Pi's shutdown daemon is alive)."""
+    peak_duty: float = 0.0
+    """Largest PWM duty (either wheel, fraction in [0, 1]) applied since the last ``mark``."""
+    ticks_left: int = 0
+    """True encoder position of the left wheel, counts (unbounded; what the board counts)."""
+    ticks_right: int = 0
+    integrator_left: int = 0
+    """PenguinPi: the firmware PI controller's integral term (its ``sum``) for the left motor
+    (0 on the icoBoard, whose controller runs in hwbridge)."""
+    integrator_right: int = 0
+    zero_duty_since: float = -1.0
+    """Simulated time since which both wheels' duty has been 0, s (-1 while a wheel is driven)."""
+    counts_changed: float = 0.0
+    """Simulated time of the last change of either true encoder count, s (the wheels have been
+    still since)."""
     leds: int = 0
     """The board's LEDs lit now, bit n-1 = LED n (PenguinPi: 1 red, 2..4 yellow); 0 on the icoBoard."""
 
@@ -450,6 +502,19 @@ class Log(Message):
     level: Literal["debug", "info", "warning", "error", "critical"]
     service: str
     text: str
+
+
+class Clock(Message):
+    """``clock``: the time of a recording being replayed (``icefloe replay --clock``).
+
+    A service that needs "now" in robot time (rather than the stamps of what it receives) can
+    follow this while a recording is replayed, as ROS nodes follow ``/clock``.
+    """
+
+    stamp: int
+    """The recording's time at the play head, ns since the epoch (the receive times in the file)."""
+    rate: float = 1.0
+    """Recorded seconds per wall-clock second."""
 
 
 class RobotInfo(Message):

@@ -278,6 +278,7 @@ class IcoBoardSim:
         self.lock = threading.RLock()
         self.model: BoardModel = model or IcoBoardModel(world, Wire.for_board(board), seed=seed)
         self._now = 0.0
+        self._delay = (0.0, 0)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with contextlib.suppress(FileNotFoundError):
             self.path.unlink()  # a stale socket from a killed simulator
@@ -289,6 +290,14 @@ class IcoBoardSim:
         self._thread.start()
         log.info("icoBoard v%d (M=%d, N=%d) on %s", board.protocol, board.sensors,
                  board.actuators, self.path)
+
+    def delay_replies(self, seconds: float, count: int = 1) -> None:
+        """Test handle: answer each of the next ``count`` exchanges ``seconds`` late (the
+        exchanges after them wait behind, as behind a stalled link)."""
+        if not (0.0 <= seconds <= 10.0) or count < 0:
+            raise ValueError(f"seconds must be in [0, 10] and count >= 0, got {seconds}, {count}")
+        with self.lock:
+            self._delay = (seconds, count)
 
     def tick(self, now: float) -> None:
         advance = getattr(self.model, "advance", None)
@@ -308,6 +317,10 @@ class IcoBoardSim:
                 return  # closed
             with self.lock:
                 reply = self.model.exchange(frame, self._now)
+                seconds, count = self._delay
+                self._delay = (seconds, max(0, count - 1))
+            if count:
+                self._stop.wait(seconds)
             if sender:
                 with contextlib.suppress(OSError):  # the host went away
                     self._sock.sendto(reply, sender)

@@ -5,7 +5,7 @@ bytes to the board model with the time it arrived; what the board sends goes
 out through a writer thread that holds every chunk back for its transmission
 time at the configured baud rate (10 bits per byte: start, 8 data, stop), so
 replies are never faster than the real link. `LineFaults` injects line noise,
-lost bytes and UART errors in either direction, from a seeded random source.
+lost bytes, UART errors and delays in either direction, from a seeded random source.
 """
 
 from __future__ import annotations
@@ -34,7 +34,9 @@ class LineFaults:
         self._drop = {"rx": 0, "tx": 0}
         self._keep = {"rx": 0, "tx": 0}
         self._noise = {"rx": 0.0, "tx": 0.0}
+        self._delay = {"rx": (0.0, 0), "tx": (0.0, 0)}
         self.dropped = {"rx": 0, "tx": 0}
+        self.delayed = {"rx": 0, "tx": 0}
         self.corrupted = {"rx": 0, "tx": 0}
 
     def drop(self, count: int, direction: str = "rx", after: int = 0) -> None:
@@ -51,6 +53,24 @@ class LineFaults:
             raise ValueError(f"probability must be in [0, 1], got {probability}")
         with self._lock:
             self._noise[_check(direction)] = probability
+
+    def delay(self, seconds: float, count: int = 1, direction: str = "tx") -> None:
+        """Hold each of the next ``count`` chunks (a reply, a text line) ``seconds`` longer; what
+        follows waits behind it, as on a real line (a slow board, a stalled link)."""
+        if not (0.0 <= seconds <= 10.0) or count < 0:
+            raise ValueError(f"seconds must be in [0, 10] and count >= 0, got {seconds}, {count}")
+        with self._lock:
+            self._delay[_check(direction)] = (seconds, count)
+
+    def hold(self, direction: str) -> float:
+        """Seconds to hold the next chunk in ``direction`` back (0 unless `delay` asked for it)."""
+        with self._lock:
+            seconds, count = self._delay[direction]
+            if not count:
+                return 0.0
+            self._delay[direction] = (seconds, count - 1)
+            self.delayed[direction] += 1
+            return seconds
 
     def apply(self, data: bytes, direction: str) -> bytes:
         """The bytes as they come out of the faulty line."""
@@ -152,7 +172,8 @@ class PtyLink:
                 if data:
                     # The pty delivers a write at once; a real line needs len(data) byte
                     # times, so the board sees the last byte only when it would arrive.
-                    busy_until = max(now, busy_until) + len(data) * self.byte_time
+                    busy_until = (max(now, busy_until) + self.faults.hold("rx")
+                                  + len(data) * self.byte_time)
                     self._sleep_until(busy_until)
                     self._on_receive(data, busy_until)
                     continue
@@ -171,7 +192,8 @@ class PtyLink:
                 return
             chunk = self.faults.apply(chunk, "tx")
             # The line is busy for len(chunk) byte times after it becomes free.
-            busy_until = max(self._clock(), busy_until) + len(chunk) * self.byte_time
+            busy_until = (max(self._clock(), busy_until) + self.faults.hold("tx")
+                          + len(chunk) * self.byte_time)
             self._sleep_until(busy_until)
             self._write(chunk)
 

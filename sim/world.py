@@ -94,6 +94,9 @@ class World:
         # m of rim travel per encoder count
         self._m_per_count = math.pi * geometry.wheel_diameter / geometry.ticks_per_rev
         self._duty = [0.0, 0.0]
+        self._peak = 0.0                     # largest |duty| since `mark`
+        self._zero_since = 0.0               # time since which both duties have been 0 (-1: driven)
+        self._counts_changed = 0.0              # time of the last change of an encoder count
         self._speed = [0.0, 0.0]             # rim speed, m/s
         self._counts = [0.0, 0.0]            # fractional encoder position, counts
         self._stalled = [False, False]
@@ -111,7 +114,35 @@ class World:
             if not (math.isfinite(value) and -1.0 <= value <= 1.0):
                 raise ValueError(f"{name} duty must be a finite number in [-1, 1], got {value}")
         with self._lock:
+            if left or right:
+                self._zero_since = -1.0
+            elif self._zero_since < 0:
+                self._zero_since = self.time
             self._duty = [float(left), float(right)]
+            self._peak = max(self._peak, abs(left), abs(right))
+
+    def mark(self) -> None:
+        """Start a new window for `peak_duty`: from now, the largest duty applied."""
+        with self._lock:
+            self._peak = max(abs(self._duty[0]), abs(self._duty[1]))
+
+    @property
+    def zero_duty_since(self) -> float:
+        """Simulated time since which both duties have been 0, s (-1 while a wheel is driven)."""
+        with self._lock:
+            return self._zero_since
+
+    @property
+    def counts_changed(self) -> float:
+        """Simulated time of the last change of either encoder count, s."""
+        with self._lock:
+            return self._counts_changed
+
+    @property
+    def peak_duty(self) -> float:
+        """The largest |duty| (either wheel) applied since the last `mark` (or the start)."""
+        with self._lock:
+            return self._peak
 
     def stall(self, wheel: str, on: bool) -> None:
         """Block a wheel ("left" or "right"): it stops turning and draws stall current."""
@@ -155,7 +186,10 @@ class World:
                 self._speed[i] = target + (v0 - target) * decay
                 self._motor_current[i] = self._current(i, target, volts)
                 noise = self._rng.gauss(0.0, self.encoder_noise) if self.encoder_noise else 0.0
+                before = math.floor(self._counts[i])
                 self._counts[i] += travel[i] * (1.0 + noise) / self._m_per_count
+                if math.floor(self._counts[i]) != before:
+                    self._counts_changed = self.time + dt
             if self.slip:
                 travel = [d * (1.0 + self._rng.gauss(0.0, self.slip)) for d in travel]
             self._pose = self._integrate(self._pose, travel[0], travel[1])

@@ -44,16 +44,22 @@ async def test_blocking_robot_reads_state_and_drives(robot):
 
             await asyncio.to_thread(r.set_velocity, 0.1, 0.2)  # holds until stop
             await wait_for(lambda: len(b.wheels) >= 3)
-            assert b.wheels[-1] == m.WheelSpeeds(left=0.1, right=0.2)
-            await asyncio.to_thread(r.stop)
+            assert (b.wheels[-1].left, b.wheels[-1].right) == (0.1, 0.2)
+            await asyncio.to_thread(r.stop)  # returns once "hwbridge" confirmed it
             await wait_for(lambda: len(b.stops) == 1)
+            # One sender, numbered in the order issued, the stop after every held command.
+            sender = b.stops[0].sender
+            assert sender and {w.sender for w in b.wheels} == {sender}
+            seqs = [w.seq for w in b.wheels]
+            assert seqs == sorted(seqs) and b.stops[0].seq > seqs[-1]
+            assert (b.halts[0].sender, b.halts[0].seq, b.halts[0].rest) == (sender, b.stops[0].seq, False)
             count = len(b.wheels)
             await asyncio.sleep(0.5)
             assert len(b.wheels) == count, "the held velocity went on after stop()"
 
             done = await asyncio.to_thread(r.set_velocity, 0.1, 0.1, 0.4, 0.1)
             assert isinstance(done, m.MotionDone) and done.completed
-            assert b.motions == [m.Motion(left=0.1, right=0.1, duration=0.4, accel=0.1)]
+            assert [(x.left, x.right, x.duration, x.accel) for x in b.motions] == [(0.1, 0.1, 0.4, 0.1)]
 
             reset = await asyncio.to_thread(r.reset_pose, 1.0, 2.0, 0.5)
             assert (reset.x, reset.y, reset.theta) == (1.0, 2.0, 0.5)

@@ -58,6 +58,8 @@ async def test_forward_and_turn_get_there_by_odometry(robot):
     async with robot.node() as node, AsyncRobot(config=robot.config, timeout=10) as r:
         await started(robot, node, "odometry", "info", "localizer")
         await r.ready(keys.ODOM_POSE.name)
+        sent = [node.subscribe(keys.WHEELS_CMD, latest=False, maxsize=10_000),
+                node.subscribe(keys.STOP, latest=False, maxsize=10_000)]
         t0 = await sim_state(node)
         pose = await r.forward(0.3)
         await asyncio.sleep(0.3)  # the truth has settled
@@ -77,6 +79,17 @@ async def test_forward_and_turn_get_there_by_odometry(robot):
         await asyncio.sleep(0.3)
         t3 = await sim_state(node)
         assert along(t2, t3) == pytest.approx(-0.1, abs=0.01)
+
+        # Every speed and stop of the moves numbered and stamped by this client (the stop that
+        # ends a move wins over speeds sent before it, whatever their priorities).
+        commands = []
+        for sub in sent:
+            while sub.pending():
+                commands.append(await anext(sub))
+        assert commands and {c.sender for c in commands} == {str(r.node.session.zid())}
+        assert len({c.seq for c in commands}) == len(commands) and min(c.stamp for c in commands) > 0
+        stops = sorted(c.seq for c in commands if isinstance(c, m.Stop))
+        assert len(stops) >= 3, stops  # one at the end of each move at least
 
         # The localizer's pose in the map (no markers needed: it follows odometry in between).
         estimate = r.localized_pose

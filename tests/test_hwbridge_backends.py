@@ -11,6 +11,7 @@ import logging
 import os
 import re
 import threading
+import time
 import tty
 
 import msgspec
@@ -23,7 +24,8 @@ from icefloe.services.hwbridge import control
 from icefloe.services.hwbridge.__main__ import check_config
 from icefloe.services.hwbridge.board import Board
 from icefloe.services.hwbridge.bridge import Bridge
-from icefloe.services.hwbridge.penguinpi import PenguinPiBoard, board_text
+from icefloe.services.hwbridge.ordering import Origin
+from icefloe.services.hwbridge.penguinpi import OPEN_FRAMES, STOP_FRAMES, PenguinPiBoard, board_text, set_gains
 from icefloe.services.hwbridge.rt import Cycle
 from icefloe.services.hwbridge.shm import IO_LED, IO_TEXT, MSG_WARNING, Shared
 from icefloe.wire import penguinpi as ppi
@@ -63,7 +65,8 @@ def penguin(tmp_path):
     said: list[tuple[int, str]] = []
     board = PenguinPiBoard(config, lambda kind, text: said.append((kind, text)))
     board.open(0)
-    assert end.read() == ppi.encode_frame(ppi.Address.AD_MULTI, ppi.MultiOp.MULTI_ALL_STOP)
+    # Stopped, both gains 0 (the firmware's integrator cleared at its next step).
+    assert end.read() == OPEN_FRAMES
     yield board, end, said
     board.close()
     end.close()
@@ -78,7 +81,8 @@ def test_penguinpi_exchange_units_order_and_matching(penguin) -> None:
     board, end, _ = penguin
     board.cycle(1 * MS, 0.15, -0.05, stopped=False)
     sent = end.read()
-    frame = ppi.Parser().feed(sent)[0]
+    assert sent.startswith(set_gains(1)), "the integral gain first, then the demands"
+    frame = ppi.Parser().feed(sent)[2]
     assert (frame.address, frame.opcode) == (ppi.Address.AD_MULTI, ppi.MultiOp.MULTI_SET_VEL_GET_ENC)
     left, right = ppi.unpack_multi_set(frame.payload)  # right-first on the wire
     assert (left, right) == (30, -10)                  # dithered demands: 5 x counts per 20 ms
@@ -118,12 +122,12 @@ def test_penguinpi_resynchronises_within_one_frame(penguin) -> None:
     end.write(multi_reply(99, 99))
     board.cycle(3 * MS, 0.1, 0.1, stopped=False)
     assert board.unmatched == 1 and board.ticks_left == 0
-    # No reply at all: a timeout after 20 ms, then the next exchange goes out.
+    # No reply at all (to the battery poll that went out at 2 ms): a timeout after 20 ms, then
+    # the next exchange goes out (tests/test_hwbridge_stops.py: what a late reply does then).
     board.cycle(10 * MS, 0.1, 0.1, stopped=False)
     end.read()
     board.cycle(40 * MS, 0.1, 0.1, stopped=False)
     assert board.timeouts == 1
-    board.cycle(41 * MS, 0.1, 0.1, stopped=False)
     assert ppi.Parser().feed(end.read())[0].opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC
 
 
@@ -131,17 +135,17 @@ def test_penguinpi_io_commands_and_stop(penguin) -> None:
     board, end, _ = penguin
     board.io(IO_LED, 2, 100, b"")
     board.io(IO_TEXT, 0, 0, b"hi\x11\x00\n")
-    board.cycle(1 * MS, 0.0, 0.0, stopped=True)       # the wheel exchange goes first
+    board.cycle(1 * MS, 0.1, 0.1, stopped=False)      # the wheel exchange goes first
     frames = ppi.Parser().feed(end.read())
-    assert ppi.unpack_multi_set(frames[0].payload) == (0, 0)
+    assert ppi.unpack_multi_set(frames[2].payload) != (0, 0)
     end.write(multi_reply(0, 0))
-    board.cycle(2 * MS, 0.0, 0.0, stopped=True)
+    board.cycle(2 * MS, 0.1, 0.1, stopped=False)
     assert end.read() == ppi.encode_frame(ppi.Address.AD_LED_2, ppi.LedOp.LED_SET_COUNT, bytes([100]))
-    board.cycle(3 * MS, 0.0, 0.0, stopped=True)
+    board.cycle(3 * MS, 0.1, 0.1, stopped=False)
     assert end.read() == b"hi\n"                      # 0x11 would start a frame: removed
     assert board_text(b"a\x0cb\xe9") == b"a\x0cb"
     board.stop()
-    assert end.read() == ppi.encode_frame(ppi.Address.AD_MULTI, ppi.MultiOp.MULTI_ALL_STOP)
+    assert end.read() == STOP_FRAMES
 
 
 def test_penguinpi_link_lost_raises_board_error(penguin) -> None:
@@ -270,31 +274,34 @@ def test_a_stop_goes_out_between_periods_once(shared) -> None:
 def test_penguinpi_stop_does_not_wait_for_the_exchange_slot(penguin) -> None:
     board, end, _ = penguin
     board.cycle(1 * MS, 0.15, 0.15, stopped=False)
-    assert ppi.Parser().feed(end.read())[0].opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC
+    assert ppi.Parser().feed(end.read())[-1].opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC
     end.write(multi_reply(0, 0))
     board.cycle(2 * MS, 0.15, 0.15, stopped=False)   # the next wheel slot is 5 ms after the first
     poll = ppi.Parser().feed(end.read())[0]
     assert poll.address == ppi.Address.AD_ADC_V      # the link is free: a slow poll goes
     end.write(ppi.encode_frame(poll.address, poll.opcode, ppi.pack_float(7400.0)))
     board.cycle(3 * MS, 0.0, 0.0, stopped=True)       # stop: at once, not at 6 ms
-    frame = ppi.Parser().feed(end.read())[0]
-    assert frame.opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC
+    sent = end.read()
+    assert sent.startswith(STOP_FRAMES)               # gains 0 and MULTI_ALL_STOP...
+    frame = ppi.Parser().feed(sent[len(STOP_FRAMES):])[0]
+    assert frame.opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC  # ...and the wheel exchange
     assert ppi.unpack_multi_set(frame.payload) == (0, 0)
 
 
 async def test_a_stop_wins_over_a_motion_step_that_has_not_seen_it(shared) -> None:
     bridge = Bridge(RobotConfig(), shared, logging.getLogger("test"))
-    motion = asyncio.ensure_future(bridge.motion(m.Motion(left=0.1, right=0.1, duration=5.0)))
+    motion = asyncio.ensure_future(bridge.motion(m.Motion(left=0.1, right=0.1, duration=5.0),
+                                                 Origin(time.monotonic_ns())))
     await asyncio.sleep(0.05)
     assert shared.read_commands()[:2] == (0.1, 0.1) and not shared.read_commands()[3]
-    since = bridge.stops
+    since = bridge.changes
     stopper = threading.Thread(target=bridge.stop)    # cmd/stop, latched on a Zenoh thread
     stopper.start()
     stopper.join()
     # The motion's next step runs before the loop tells it that it was cut: it must not drive.
-    bridge.drive(0.1, 0.1, "cmd/motion", motion_since=since)
+    bridge.motion_step(0.1, 0.1, since)
     assert shared.read_commands()[:2] == (0.0, 0.0) and shared.read_commands()[3] == 1
     done = await asyncio.wait_for(motion, 1.0)
     assert not done.completed and done.reason == "cmd/stop"
-    bridge.drive(0.1, 0.1, "cmd/twist")                # a new command releases the latch
+    bridge.command(0.1, 0.1, "cmd/twist", Origin(time.monotonic_ns()))  # a new command releases it
     assert shared.read_commands()[3] == 0

@@ -30,7 +30,7 @@ async def start_stack(robot: Robot, node: Node):
 
     task = asyncio.ensure_future(first())
     try:
-        await wait_for(lambda: task.done() or not hw.alive() or not sim.alive(), timeout=20)
+        await wait_for(lambda: task.done() or not hw.alive() or not sim.alive(), timeout=60)
     finally:
         task.cancel()
     assert hw.alive(), hw.output

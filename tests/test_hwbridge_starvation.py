@@ -137,7 +137,7 @@ def test_a_read_that_finds_a_write_in_progress_is_put_off_and_counted() -> None:
             assert spent < 0.05, f"{READ_TRIES} tries took {spent * 1e3:.1f} ms"  # gives the CPU back soon
             shared._set_word(seq_off, seq + 2)           # the write finished
             assert read() is not None
-        assert shared.read_commands() == (0.1, 0.2, 123, 0, 0)
+        assert shared.read_commands() == (0.1, 0.2, 123, 0, 0, 0)
         assert shared.stalled_reads == 2
     finally:
         shared.close()

@@ -97,7 +97,7 @@ async def test_localizer_process_tracks_gates_and_survives(robot) -> None:
 
 
 @pytest.mark.parametrize(("toml", "message"), [
-    ('world = "no-such-world.toml"', "no-such-world: no world file of that name (known: lab"),
+    ('world = "no-such-world.toml"', "no-such-world: no world file of that name (known: "),
     ("sigma_bearing = 0.0", "localizer.sigma_bearing must be > 0, got 0.0"),
 ])
 async def test_localizer_with_a_bad_config_says_so_and_exits(make_robot, toml: str, message: str) -> None:

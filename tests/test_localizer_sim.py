@@ -57,10 +57,10 @@ async def drive_square(robot, *, play_camera: bool) -> tuple[list, list, list, R
     return truth, odom, loc, stats
 
 
-async def drive_legs(node) -> None:
-    """Drive LEGS with cmd/twist at 20 Hz, stop, and wait for the wheels to rest and the last samples."""
+async def drive_legs(node, legs: list[tuple[float, float, float]] = LEGS) -> None:
+    """Drive ``legs`` with cmd/twist at 20 Hz, stop, and wait for the wheels to rest and the last samples."""
     twist = node.publisher(keys.TWIST)
-    for v, w, seconds in LEGS:
+    for v, w, seconds in legs:
         for _ in range(round(seconds / 0.05)):
             twist.put(m.Twist(v=v, w=w))
             await asyncio.sleep(0.05)

@@ -126,8 +126,10 @@ async def test_timed_motion_blocks_until_the_robot_has_stopped(robot):
                                              accel="0.2")
         answered = time.monotonic()
         assert (status, ctype) == (200, TEXT), body
-        assert b.motions == [m.Motion(left=pytest.approx(20 * K), right=pytest.approx(20 * K),
-                                      duration=0.6, accel=0.2)]
+        (motion,) = b.motions
+        assert (motion.left, motion.right, motion.duration, motion.accel) == (
+            pytest.approx(20 * K), pytest.approx(20 * K), 0.6, 0.2)
+        assert motion.sender and motion.seq > 0  # numbered and stamped, as every command
         assert b.motion_done_at and b.motion_done_at[0] <= answered  # the reply came after the end
         assert json.loads(body)["encoder"] == {"left": 0, "right": 0}
         # PiBot.m spells it acceleration=; the old server ignored it, we take it as accel=.
@@ -245,8 +247,11 @@ async def test_routes_without_a_robot_say_which_service_is_missing(robot):
             assert f"icefloe/{robot.name}/" in json.loads(body)["message"]
         status, _, body = await http.get("/robot/set/velocity", value="10,10", time="0.2")
         assert status == 503 and "cmd/motion" in json.loads(body)["message"]
+        # A stop nobody confirms is not reported as done.
+        status, _, body = await http.get("/robot/stop")
+        assert status == 503 and "cmd/halt" in json.loads(body)["message"]
         # The state JSON still answers, with the old server's placeholders.
-        assert (await http.get("/robot/stop"))[2] == (
+        assert (await http.get("/robot/set/velocity", value="0,0"))[2] == (
             '{"encoder": {"left": null, "right": null}, "pose": {"x": 0, "y": 0, "theta": 0}}')
 
 

@@ -136,6 +136,7 @@ class Board:
     image: bytes | None = None
     wheels: list[m.WheelSpeeds] = field(default_factory=list)
     stops: list[m.Stop] = field(default_factory=list)
+    halts: list[m.Halt] = field(default_factory=list)
     motions: list[m.Motion] = field(default_factory=list)
     motion_done_at: list[float] = field(default_factory=list)
     resets: list[m.PoseReset] = field(default_factory=list)
@@ -162,7 +163,13 @@ class Board:
             self.pose = m.Pose(stamp=time.time_ns(), x=request.x, y=request.y, theta=request.theta)
             return self.pose
 
+        async def halt(request: m.Halt) -> m.Wheels:  # hwbridge confirms a stop: at once here
+            self.halts.append(request)
+            return m.Wheels(stamp=time.time_ns(), ticks_left=self.ticks[0], ticks_right=self.ticks[1],
+                            speed_left=0.0, speed_right=0.0)
+
         n.queryable(keys.MOTION, motion)
+        n.queryable(keys.HALT, halt)
         n.queryable(keys.ODOM_RESET, reset)
 
         async def record(topic: keys.Topic, into: list[Any]) -> None:

@@ -6,7 +6,8 @@
     introspect.py  topics, info, services              what is on the bus, who declares it
     teleop.py      teleop                              drive from the keyboard
     schemas.py     schemas                             the JSON Schemas of the messages
-    viz.py         viz                                 the Rerun view of robots
+    record.py      record, replay, bag, export         recordings: MCAP files, played back onto the bus
+    viz.py         viz                                 the Rerun view of robots (live, or from a recording)
     gateware.py    gateware build, pins                the icoBoard's FPGA design
     snapshot.py    snapshot                            save a frame of the robot's camera
     calibrate.py   calibrate                           calibrate the robot's camera
@@ -30,7 +31,7 @@ import argcomplete
 
 from ..errors import IcefloeError
 
-VERB_MODULES = ("robot", "bus", "introspect", "teleop", "viz", "schemas", "gateware", "snapshot", "calibrate",
+VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
                 "scaffold", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 

@@ -20,7 +20,7 @@ from ..errors import BadPayload
 from ..runtime import Node, RawSample, load_config
 from ..schemas import codec, export, keys
 from ..schemas.keys import Topic
-from ..schemas.messages import Message
+from ..schemas.messages import Command, Message
 
 
 def config_names(**_: object) -> list[str]:
@@ -53,13 +53,14 @@ def add_key_argument(parser: argparse.ArgumentParser, help_: str, **kwargs: Any)
     action.completer = key_names  # type: ignore[attr-defined]
 
 
-def add_bus_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+def add_bus_arguments(parser: argparse.ArgumentParser,
+                      robot_help: str = ("robot name on the bus: the <robot> of icefloe/<robot>/... "
+                                         "(default: the config's name)")) -> argparse.ArgumentParser:
     """The options of every verb that opens a session: which robot, where, as whom."""
     add_config_argument(parser)
     parser.add_argument("--connect", action="append", metavar="ENDPOINT",
                         help="Zenoh endpoint of the robot's router, e.g. tcp/10.0.0.5:7447 (repeatable)")
-    parser.add_argument("--robot", help="robot name on the bus: the <robot> of icefloe/<robot>/... "
-                                        "(default: the config's name)")
+    parser.add_argument("--robot", help=robot_help)
     parser.add_argument("--credentials", metavar="FILE",
                         help="a robot's credentials file (robot, user, password, address): drive it as its owner")
     return parser
@@ -105,7 +106,11 @@ def describe(raw: RawSample) -> Any:
     topic = keys.topic_of(raw.key)
     if topic is not None and topic.kind != "query":
         msg = codec.decode(raw.payload, raw.encoding, topic.type, raw.key)
-        return printable(msgspec.to_builtins(msg, builtin_types=(bytes,)))
+        data = msgspec.to_builtins(msg, builtin_types=(bytes,))
+        if isinstance(msg, Command) and not (msg.sender or msg.seq or msg.stamp):
+            for field in ("sender", "seq", "stamp"):  # not numbered: shown as it was sent
+                del data[field]
+        return printable(data)
     return printable(codec.to_builtins(raw.payload, raw.encoding))
 
 

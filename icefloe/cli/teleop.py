@@ -157,9 +157,9 @@ async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             loop.add_signal_handler(sig, quit_.set)
         try:
-            await drive_loop(drive, keys_in, quit_, twist, stop, pose, 1.0 / args.rate)
+            await drive_loop(drive, keys_in, quit_, twist, stop, pose, 1.0 / args.rate, node.command)
         finally:
-            stop.put(m.Stop())  # whatever ended teleop: the wheels stop
+            stop.put(node.command(m.Stop))  # whatever ended teleop: the wheels stop
             loop.remove_reader(fd)
             for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
                 loop.remove_signal_handler(sig)
@@ -172,8 +172,9 @@ async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
 
 
 async def drive_loop(drive: Drive, keys_in: asyncio.Queue[bytes], quit_: asyncio.Event, twist, stop, pose,
-                     period: float) -> None:  # type: ignore[no-untyped-def]
-    """Keys in, twists out, every ``period`` s while moving; returns on a quit key or signal."""
+                     period: float, command) -> None:  # type: ignore[no-untyped-def]
+    """Keys in, twists out, every ``period`` s while moving; returns on a quit key or signal.
+    ``command`` (`Node.command`) numbers them: a stop wins over a twist sent before it."""
     latest: m.Pose | None = None
 
     async def follow_pose() -> None:
@@ -193,14 +194,14 @@ async def drive_loop(drive: Drive, keys_in: asyncio.Queue[bytes], quit_: asyncio
                 if what == "quit":
                     return
                 if what == "stop":
-                    stop.put(m.Stop())
+                    stop.put(command(m.Stop))
                 if what == "move":
                     next_send = 0.0  # at once
             now = time.monotonic()
             if drive.expired(now):
-                stop.put(m.Stop())
+                stop.put(command(m.Stop))
             if drive.moving and now >= next_send:
-                twist.put(m.Twist(v=drive.v, w=drive.w))
+                twist.put(command(m.Twist, v=drive.v, w=drive.w))
                 next_send = now + period
             where = f"  x {latest.x:+.2f} y {latest.y:+.2f} m" if latest else ""
             if (line := drive.line() + where) != shown:  # only what changed: a terminal over Wi-Fi is slow

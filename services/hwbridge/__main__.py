@@ -2,10 +2,10 @@
 
 This is the bus process. It
 
-* subscribes to ``cmd/twist``, ``cmd/wheels``, ``cmd/stop`` (each message as
-  it comes), ``io/leds``, ``io/ledarray``, ``io/text``, ``io/screen`` (collected
-  every 20 ms) and answers the ``cmd/motion`` and ``cmd/halt`` queries
-  (`bridge.Bridge`);
+* takes ``cmd/twist``, ``cmd/wheels``, ``cmd/stop`` and the ``cmd/motion`` and
+  ``cmd/halt`` queries on the Zenoh thread that delivers them, in the order they
+  arrive, and orders them by what they carry (`ordering`, `bridge.Bridge`);
+  collects ``io/leds``, ``io/ledarray``, ``io/text``, ``io/screen`` every 20 ms;
 * starts the real-time process (`rt.py`: the cycle, no Zenoh in it) and hands
   it the commands through shared memory; if that process dies, tells the board
   to stop and exits, so that its supervisor (``icefloe up``, systemd) starts
@@ -26,20 +26,21 @@ import contextlib
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import msgspec
 import zenoh
 
 from icefloe.config import RobotConfig
-from icefloe.errors import BadPayload, BoardError, ConfigError
-from icefloe.runtime import Node, run
+from icefloe.errors import BadPayload, BoardError, ConfigError, NotConfirmed
+from icefloe.runtime import MSGPACK, Node, decode_query, run
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
 from .board import make_board
 from .bridge import Bridge, LoopReport
+from .ordering import Origin
 from .rt import EXIT_MISMATCH
 from .shm import IO_SLOTS, Shared, block_name
 
@@ -175,7 +176,7 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
         bridge.forward_messages()
         if now >= next_loop:
             next_loop += 1.0
-            stats = report.make(s, shared.hist, now, shared.stalled_reads)
+            stats = report.make(s, shared.hist, now, shared.stalled_reads, bridge.dropped)
             bridge.epoch += 1  # the cycle restarts its maxima for the next interval
             bridge.sync()
             if stats is not None:
@@ -205,17 +206,13 @@ async def main(config: RobotConfig) -> int:
             return 2
         shared = Shared.create(block_name(config.name))
         bridge = Bridge(config, shared, node.log)
-        stop_sub = fast_stop(node, bridge)
+        inputs = command_inputs(node, bridge)
         try:
             async with asyncio.TaskGroup() as tasks:
                 # When the supervisor returns (the board refused, the cycle died), everything else stops too.
                 cycle = tasks.create_task(supervise(config, bridge, node))
                 others = [tasks.create_task(publish(config, bridge, node)),
                           tasks.create_task(forward_io(node, bridge))]
-                for topic, handler in ((keys.TWIST, bridge.twist), (keys.WHEELS_CMD, bridge.wheels)):
-                    others.append(tasks.create_task(_forward(node, topic, handler)))
-                node.queryable(keys.MOTION, bridge.motion)
-                node.queryable(keys.HALT, bridge.halt)
                 node.log.info("hwbridge up: %s, cycle at %g Hz", _board_name(config),
                               config.hwbridge.rate_hz)
 
@@ -226,31 +223,93 @@ async def main(config: RobotConfig) -> int:
                 cycle.add_done_callback(stop_the_rest)
         finally:
             # The supervisor has stopped the cycle (wheels told to stop) before we get here.
-            with contextlib.suppress(Exception):
-                stop_sub.undeclare()  # first: its callback writes to the shared memory
+            for item in inputs:  # first: their callbacks write to the shared memory
+                with contextlib.suppress(Exception):
+                    item.undeclare()
             shared.close()
         return cycle.result()
 
 
-def fast_stop(node: Node, bridge: Bridge) -> zenoh.Subscriber:
-    """``cmd/stop``, latched on the Zenoh thread that delivers it.
+def command_inputs(node: Node, bridge: Bridge) -> list[Any]:
+    """``cmd/twist``, ``cmd/wheels``, ``cmd/stop``, ``cmd/motion`` and ``cmd/halt``, each taken
+    on the Zenoh thread that delivers it, stamped with its arrival time at once.
 
-    The other inputs go through the event loop, which a flood of messages can
-    keep busy for tens of milliseconds; a stop must not wait in that queue.
+    The other inputs go through the event loop, which a flood of messages can keep
+    busy for tens of milliseconds: a stop must not wait in that queue, and a motion
+    command that arrived before a stop must not be handled after it. (The timed
+    motion and the wait for a confirmation then run in the event loop.)
     """
-    key_expr = node.key(keys.STOP)
+    loop = asyncio.get_running_loop()
+    running: set[asyncio.Task[None]] = set()
 
-    def on_sample(sample: zenoh.Sample) -> None:
-        if not node.own_key(key_expr, str(sample.key_expr)):
-            return  # a wildcard put (icefloe/*/cmd/stop) is no command for this robot
-        try:
-            codec.decode(sample.payload.to_bytes(), str(sample.encoding), m.Stop, key_expr)
-        except BadPayload as exc:
-            node.log.warning("dropped: %s", exc)
-            return
-        bridge.stop(keys.STOP.name)
+    def subscribe(topic: keys.Topic, handle: Callable[[Any, Origin], object]) -> Any:
+        key_expr = node.key(topic)
 
-    return node.session.declare_subscriber(key_expr, on_sample)
+        def on_sample(sample: zenoh.Sample) -> None:
+            arrival = time.monotonic_ns()
+            if not node.own_key(key_expr, str(sample.key_expr)):
+                return  # a wildcard put (icefloe/*/cmd/stop) is no command for this robot
+            try:
+                msg = codec.decode(sample.payload.to_bytes(), str(sample.encoding), topic.type, key_expr)
+            except BadPayload as exc:
+                bridge.limited.warning(f"bad:{topic.name}", f"dropped: {exc}")
+                return
+            handle(msg, origin(msg, arrival, sample.timestamp))
+
+        return node.session.declare_subscriber(key_expr, on_sample)
+
+    def queryable(topic: keys.Topic, start: Callable[[Any, Origin], Awaitable[m.Message]]) -> Any:
+        key_expr = node.key(topic)
+
+        async def answer(query: zenoh.Query, pending: Awaitable[m.Message]) -> None:
+            try:
+                query.reply(key_expr, codec.encode(await pending), encoding=MSGPACK)
+            except (BadPayload, NotConfirmed) as exc:
+                bridge.limited.warning(f"query:{topic.name}", f"{topic.name}: {exc}")
+                query.reply_err(str(exc))
+            except Exception as exc:
+                node.log.exception("query %s failed", key_expr)
+                query.reply_err(f"{key_expr}: {type(exc).__name__}: {exc}")
+            finally:
+                query.drop()
+
+        def spawn(query: zenoh.Query, pending: Awaitable[m.Message]) -> None:
+            task = asyncio.ensure_future(answer(query, pending))
+            running.add(task)
+            task.add_done_callback(running.discard)
+
+        def on_query(query: zenoh.Query) -> None:
+            arrival = time.monotonic_ns()
+            if not node.own_key(key_expr, str(query.key_expr)):
+                query.drop()  # no answer: a command is taken on its own key only
+                return
+            try:
+                msg = decode_query(query, topic.type, key_expr)
+            except BadPayload as exc:
+                bridge.limited.warning(f"bad:{topic.name}", f"rejected query: {exc}")
+                query.reply_err(str(exc))
+                query.drop()
+                return
+            pending = start(msg, origin(msg, arrival, None))  # a halt latches its stop here
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                loop.call_soon_threadsafe(spawn, query, pending)
+
+        return node.session.declare_queryable(key_expr, on_query)
+
+    def halt(msg: m.Halt, o: Origin) -> Awaitable[m.Wheels]:
+        return bridge.halt(msg, bridge.stop(keys.HALT.name, o))
+
+    return [subscribe(keys.TWIST, bridge.twist), subscribe(keys.WHEELS_CMD, bridge.wheels),
+            subscribe(keys.STOP, lambda _msg, o: bridge.stop(keys.STOP.name, o)),
+            queryable(keys.MOTION, bridge.motion), queryable(keys.HALT, halt)]
+
+
+def origin(msg: m.Command, arrival_ns: int, timestamp: zenoh.Timestamp | None) -> Origin:
+    """What a command says about who issued it and when, plus the router's Zenoh timestamp."""
+    zenoh_id, zenoh_ns = "", 0
+    if timestamp is not None:  # the router's clock (HLC: ns since the epoch, NTP64 inside)
+        zenoh_id, zenoh_ns = str(timestamp.get_id()), timestamp.get_time_as_ntp64().as_nanos()
+    return Origin.of(arrival_ns, msg.sender, msg.seq, msg.stamp, zenoh_id, zenoh_ns)
 
 
 IO_PERIOD_S = 0.02
@@ -275,12 +334,6 @@ async def forward_io(node: Node, bridge: Bridge) -> None:
         for batches, handler in inputs:
             for msg in batches.take():
                 handler(msg)
-
-
-async def _forward(node: Node, topic: keys.Topic, handler: Callable[[Any], None]) -> None:
-    """Every message of ``topic`` (FIFO), to ``handler``."""
-    async for msg in node.subscribe(topic):
-        handler(msg)
 
 
 if __name__ == "__main__":

@@ -64,6 +64,9 @@ class Board:
         """icoBoard: replies that came after their cycle had given up on them."""
         self.watchdog = 0
         """icoBoard v2: times the board's watchdog stopped the wheels."""
+        self.stop_confirmed = False
+        """True while the board is verified in its stopped state: zero duty, controller state
+        cleared (what "verified" means is up to each backend; see docs/hwbridge.md)."""
         # board readings
         self.battery_voltage = 0.0
         """V (0 = not read yet)."""
@@ -82,8 +85,10 @@ class Board:
     def cycle(self, now_ns: int, left: float, right: float, stopped: bool, until_ns: int = 0) -> None:
         """One period: targets (rim speeds, m/s) out, readings in. Never waits on the link.
 
-        ``stopped`` means the targets are zero because of a stop, the deadman or
-        no command yet: the backend drives zero without any controller action.
+        ``stopped`` means the targets are zero (a stop, the deadman, no command yet, or
+        a command of zero speed): the backend drives zero duty without any controller
+        action, clears the controller's state, and sets `stop_confirmed` once the board
+        has shown it did.
         ``until_ns`` (CLOCK_MONOTONIC), when given, is when to stop waiting for a
         reply (a stop sent between periods must not delay the next period).
         Raises `BoardError` when the link is lost.
@@ -94,7 +99,9 @@ class Board:
         """Queue an LED / LED array / screen / text command (`shm.IO_*`)."""
 
     def stop(self) -> None:
-        """Tell the board to stop the wheels now (best effort, never raises)."""
+        """Tell the board to stop the wheels now and leave it stopped, controller cleared, when
+        this process is gone (on exit and when the link is lost; best effort, never raises,
+        never waits long)."""
 
     def close(self) -> None:
         """Release the link (idempotent)."""

@@ -1,14 +1,18 @@
 """hwbridge's bus side: bus messages -> shared-memory commands, shared-memory state -> bus.
 
 `Bridge` owns the command half of the shared memory (`shm.Shared`): wheel
-targets, the time of the last motion command (the real-time cycle applies
-the deadman against it), the stop latch and the I/O ring. It validates and
-clamps every input, with a log line naming the key and the value. It reads
-the state half to publish ``hw/wheels``, ``hw/loop``, ``hw/battery``,
-``io/buttons`` and ``io/dip``, and forwards the cycle's messages to ``log``.
+targets, the time the applied motion command was issued (the real-time cycle
+applies the deadman against it), the stop latch with its number, and the I/O
+ring. It validates and clamps every input, with a log line naming the key and
+the value, and decides with `ordering.CommandOrder` whether a motion command
+may still drive: not if it was issued before a stop, or is older than the
+deadman. It reads the state half to publish ``hw/wheels``, ``hw/loop``,
+``hw/battery``, ``io/buttons`` and ``io/dip``, to learn when the board has
+confirmed a stop (``stop_confirmed``), and forwards the cycle's messages to
+``log``.
 
-Nothing here is timing-critical: a late bus message can only make the
-deadman stop the wheels, never make them run on.
+Commands and stops come in on Zenoh's threads (``__main__``), so that nothing
+queued in the event loop can reorder them; one lock guards the command state.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import time
 from collections.abc import Callable
 
 from icefloe.config import RobotConfig
-from icefloe.errors import BadPayload
+from icefloe.errors import BadPayload, NotConfirmed
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
@@ -34,6 +38,7 @@ from .control import (
     percentiles,
     twist_to_wheels,
 )
+from .ordering import CommandOrder, Origin
 from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, STATE_FIELDS, Shared
 
 MOTION_STEP_S = 0.02
@@ -41,6 +46,11 @@ MOTION_STEP_S = 0.02
 HALTED_SPEED = 0.005
 """``cmd/halt`` answers once both measured speeds are below this, m/s."""
 HALT_TIMEOUT_S = 3.0
+CONFIRM_TIMEOUT_S = 3.0
+"""A stop the board has not confirmed within this long is reported as not confirmed, s (it
+normally takes one exchange on the icoBoard, ~25 ms on the PenguinPi: docs/hwbridge.md)."""
+CONFIRM_POLL_S = 0.001
+"""How often a waiting confirmation looks at the cycle's state, s."""
 
 
 class RateLimitedLog:
@@ -70,72 +80,139 @@ class Bridge:
         self.log = log
         self.limited = RateLimitedLog(log)
         self.max_speed = config.hwbridge.max_wheel_speed
+        self.order = CommandOrder(round(config.hwbridge.deadman_s * 1e9))
         self.left = self.right = 0.0
         self.fresh_ns = 0
+        """CLOCK_MONOTONIC ns at which the applied motion command was issued (0 = none yet)."""
         self.stopped = False
+        self.stop_seq = 0
+        """Stops latched so far; the cycle reports the latest the board has confirmed."""
+        self.released = 0
+        """`stop_seq` when a motion command last released the latch."""
+        self.changes = 0
+        """Commands and stops applied so far (a timed motion steps only while it is the latest)."""
+        self.dropped = 0
+        """Motion commands refused by the ordering rules (`ordering.CommandOrder`)."""
         self.epoch = 0
-        self.stops = 0
-        """Stops latched so far (a motion that began before the last one must not drive)."""
         self.rt_pid: int | None = None
         """The running real-time process (set by its supervisor), for `kick`."""
         self._lock = threading.Lock()
-        """`stop` may run on a Zenoh thread (the fast path): one writer at a time."""
+        """Commands and stops arrive on Zenoh threads and the event loop: one writer at a time."""
         self._loop = asyncio.get_running_loop()
         self._motion: asyncio.Future[str] | None = None
         """Set while a timed motion runs; resolved with the reason it was cut short."""
+        self._waiting: list[tuple[int, asyncio.Future[dict]]] = []
+        """Stop numbers waited for (`confirmed`), and their futures: one task watches them all."""
+        self._watcher: asyncio.Task[None] | None = None
         self.sync()
 
     def sync(self) -> None:
         """Write the command fields to shared memory (the cycle reads them every period)."""
         with self._lock:
             self.shared.write_commands(self.left, self.right, self.fresh_ns, self.stopped,
-                                       self.epoch)
+                                       self.epoch, self.stop_seq)
 
     # ------------------------------------------------------------------ commands
 
-    def drive(self, left: float, right: float, source: str, *, motion_since: int | None = None) -> None:
-        """New wheel targets (m/s): clamp (logged), release the stop latch, feed the deadman.
+    def command(self, left: float, right: float, source: str, origin: Origin) -> bool:
+        """A motion command from the bus (wheel speeds, m/s): drive, if `CommandOrder` allows.
 
-        A timed motion passes ``motion_since``, the `stops` count when it began: a stop
-        latched since then (on a Zenoh thread, before the motion learns it was cut) wins.
+        Clamps (logged), releases the stop latch and feeds the deadman with the time the
+        command was issued. Safe to call from any thread. Returns whether it drives.
         """
         left, right, clamped = limit_wheels(left, right, self.max_speed)
         if clamped:
             self.limited.warning(f"clamp:{source}", f"{source}: clamped to {self.max_speed} m/s "
                                  f"per wheel (left {left:.3f}, right {right:.3f})")
-        if motion_since is None:
-            self.cut_motion(f"another command on {source}")
         with self._lock:
-            if motion_since is not None and motion_since != self.stops:
-                return
-            self.left, self.right = left, right
-            self.stopped = False
-            self.fresh_ns = time.monotonic_ns()
+            issued, why = self.order.motion(origin)
+            if why:
+                self.dropped += 1
+            else:
+                self._drive(left, right, issued)
+                self.changes += 1
+        if why:
+            self.limited.warning(f"order:{source}", f"{source}: not applied: {why}")
+            return False
         self.sync()
+        self._cut(f"another command on {source}")
+        return True
 
-    def twist(self, msg: m.Twist) -> None:
+    def _drive(self, left: float, right: float, issued_ns: int) -> None:
+        """New targets (lock held): release the latch, the deadman counts from ``issued_ns``."""
+        if self.stopped:
+            self.released = self.stop_seq
+        self.left, self.right = left, right
+        self.stopped = False
+        self.fresh_ns = issued_ns
+
+    def twist(self, msg: m.Twist, origin: Origin) -> bool:
         left, right = twist_to_wheels(msg.v, msg.w, self.config.geometry.track)
-        self.drive(left, right, keys.TWIST.name)
+        return self.command(left, right, keys.TWIST.name, origin)
 
-    def wheels(self, msg: m.WheelSpeeds) -> None:
-        self.drive(msg.left, msg.right, keys.WHEELS_CMD.name)
+    def wheels(self, msg: m.WheelSpeeds, origin: Origin) -> bool:
+        return self.command(msg.left, msg.right, keys.WHEELS_CMD.name, origin)
 
-    def stop(self, why: str = "cmd/stop") -> None:
-        """Latch a stop: the wheels stay stopped until the next motion command.
+    def stop(self, why: str = "cmd/stop", origin: Origin | None = None) -> int:
+        """Latch a stop: the wheels stay stopped until a motion command issued after it.
 
         Safe to call from any thread: ``cmd/stop`` is latched straight from the
-        Zenoh callback, without waiting for a busy event loop.
+        Zenoh callback, without waiting for a busy event loop. Returns the stop's
+        number, which `confirmed` waits for (a stop repeated with the same sender and
+        seq keeps its first number).
         """
+        origin = origin or Origin(time.monotonic_ns())
         with self._lock:
-            self.left = self.right = 0.0
-            self.stopped = True
-            self.stops += 1
-        self.sync()
-        self.kick()
-        if threading.current_thread() is threading.main_thread():
-            self.cut_motion(why)
-        else:
-            self._loop.call_soon_threadsafe(self.cut_motion, why)
+            _issued, number = self.order.stop(origin, self.stop_seq + 1)
+            new = number > self.stop_seq
+            if new:
+                self.stop_seq = number
+                self.left = self.right = 0.0
+                self.stopped = True
+                self.changes += 1
+        if new:
+            self.sync()
+            self.kick()
+            self._cut(why)
+        return number
+
+    async def confirmed(self, number: int, timeout: float = CONFIRM_TIMEOUT_S) -> dict:
+        """The cycle's state once the board has confirmed stop ``number`` (zero duty, controller
+        cleared); `NotConfirmed` if a newer motion released it first, or after ``timeout`` s."""
+        waiter: asyncio.Future[dict] = asyncio.get_running_loop().create_future()
+        self._waiting.append((number, waiter))
+        if self._watcher is None or self._watcher.done():
+            self._watcher = asyncio.create_task(self._watch())
+        try:
+            return await asyncio.wait_for(waiter, timeout)
+        except TimeoutError:
+            state = self.shared.read_state() or dict.fromkeys(STATE_FIELDS, 0)  # None: mid-write
+            age = (time.monotonic_ns() - state["sample_ns"]) * 1e-9 if state["sample_ns"] else -1
+            raise NotConfirmed(
+                f"the board did not confirm the stop within {timeout:g} s (board link "
+                f"{'up' if state['link_up'] else 'down'}, last reading {age:.3f} s ago, "
+                f"{state['timeouts']} timeouts so far)") from None
+
+    async def _watch(self) -> None:
+        """Answer the waiting `confirmed` calls from the cycle's state, every millisecond."""
+        while self._waiting:
+            state = self.shared.read_state()
+            if state is None:  # the cycle is in the middle of a write: look again next time
+                await asyncio.sleep(CONFIRM_POLL_S)
+                continue
+            waiting, self._waiting = self._waiting, []
+            for number, waiter in waiting:
+                if waiter.done():  # timed out
+                    continue
+                if state["stop_confirmed"] >= number:
+                    waiter.set_result(state)
+                elif self.released >= number:
+                    waiter.set_exception(NotConfirmed(
+                        "a motion command issued after the stop released it before the board "
+                        "confirmed it"))
+                else:
+                    self._waiting.append((number, waiter))
+            await asyncio.sleep(CONFIRM_POLL_S)
 
     def kick(self) -> None:
         """Wake the cycle (SIGUSR1) so it sends a latched stop now, not at its next period."""
@@ -149,37 +226,75 @@ class Bridge:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGUSR1)
 
+    def _cut(self, why: str) -> None:
+        """End a running timed motion (from any thread)."""
+        if threading.current_thread() is threading.main_thread():
+            self.cut_motion(why)
+        else:
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                self._loop.call_soon_threadsafe(self.cut_motion, why)
+
     def cut_motion(self, why: str) -> None:
         if self._motion is not None and not self._motion.done():
             self._motion.set_result(why)
 
-    async def motion(self, msg: m.Motion) -> m.MotionDone:
-        """Run a timed motion; answer when it ends or is cut short."""
+    async def motion(self, msg: m.Motion, origin: Origin) -> m.MotionDone:
+        """Run a timed motion; answer when it has ended and the board confirmed the stop, or
+        when it is cut short or refused."""
         try:
             profile = MotionProfile(msg.left, msg.right, msg.duration, msg.accel, time.monotonic())
         except ValueError as exc:
             raise BadPayload(f"{keys.MOTION.name}: {exc}") from None
+        with self._lock:
+            _issued, why = self.order.motion(origin)
+            if why:
+                self.dropped += 1
+            else:
+                self.changes += 1
+                since = self.changes
+        if why:
+            self.limited.warning("order:cmd/motion", f"cmd/motion: not run: {why}")
+            return m.MotionDone(stamp=time.time_ns(), completed=False, reason=f"refused: {why}")
         self.cut_motion("another cmd/motion")
         cut: asyncio.Future[str] = asyncio.get_running_loop().create_future()
         self._motion = cut
-        since = self.stops
         while True:
             left, right, done = profile.at(time.monotonic())
             if done:
                 break
-            self.drive(left, right, keys.MOTION.name, motion_since=since)
+            self.motion_step(left, right, since)
             try:
                 reason = await asyncio.wait_for(asyncio.shield(cut), MOTION_STEP_S)
             except TimeoutError:
                 continue
             return m.MotionDone(stamp=time.time_ns(), completed=False, reason=reason)
         self._motion = None
-        self.drive(0.0, 0.0, keys.MOTION.name, motion_since=since)
+        if cut.done() or since != self.changes:  # cut at its very end
+            reason = cut.result() if cut.done() else "another command"
+            return m.MotionDone(stamp=time.time_ns(), completed=False, reason=reason)
+        try:
+            await self.confirmed(self.stop("cmd/motion ended"))
+        except NotConfirmed as exc:
+            return m.MotionDone(stamp=time.time_ns(), completed=False,
+                                reason=f"ended, but the stop was not confirmed: {exc}")
         return m.MotionDone(stamp=time.time_ns(), completed=True, reason="")
 
-    async def halt(self, _msg: m.Stop) -> m.Wheels:
-        """Stop the wheels; answer with `Wheels` once both measured speeds are ~0."""
-        self.stop("cmd/halt")
+    def motion_step(self, left: float, right: float, since: int) -> None:
+        """One step of a timed motion, unless a command or stop came since it began (`changes`):
+        a stop latched on a Zenoh thread wins over a step that has not yet learnt of it."""
+        left, right, _ = limit_wheels(left, right, self.max_speed)
+        with self._lock:
+            if self.changes != since:
+                return
+            self._drive(left, right, time.monotonic_ns())
+        self.sync()
+
+    async def halt(self, msg: m.Halt, number: int) -> m.Wheels:
+        """Answer a ``cmd/halt`` whose stop ``number`` is latched: once the board has confirmed
+        it, and with ``msg.rest`` once both measured speeds are ~0 too."""
+        state = await self.confirmed(number)
+        if not msg.rest:
+            return self.wheels_message(state)
         deadline = time.monotonic() + HALT_TIMEOUT_S
         last = dict.fromkeys(STATE_FIELDS, 0)
         while time.monotonic() < deadline:
@@ -261,9 +376,10 @@ class LoopReport:
         self._prev_t = 0.0
         self._hist = [0] * HIST_BINS
 
-    def make(self, state: dict, hist, now: float, stalled_reads: int = 0) -> m.LoopStats | None:
+    def make(self, state: dict, hist, now: float, stalled_reads: int = 0,
+             dropped: int = 0) -> m.LoopStats | None:
         """``stalled_reads``: the bus process's own count (`Shared.stalled_reads`); the cycle's is in
-        ``state``."""
+        ``state``. ``dropped``: motion commands the bus side refused so far (`Bridge.dropped`)."""
         counts = list(hist)
         prev, self._prev = self._prev, state
         delta = [c - p for c, p in zip(counts, self._hist, strict=True)]
@@ -288,4 +404,5 @@ class LoopReport:
             crc_errors=state["crc_errors"], timeouts=state["timeouts"],
             unmatched=state["unmatched"], garbage_bytes=state["garbage_bytes"],
             board_errors=state["board_errors"], stalled_reads=state["stalled_reads"] + stalled_reads,
+            late=state["late"], commands_dropped=dropped,
         )

@@ -133,6 +133,8 @@ class IcoBoardBoard(Board):
         self._last_ok_ns = 0
         self._last_cycle_ns = 0
         self._watchdog_seen = False
+        self._sent_zero = False
+        """The last frame sent was a stopped one (duty 0, controllers reset)."""
 
     # ------------------------------------------------------------------ link
 
@@ -180,6 +182,7 @@ class IcoBoardBoard(Board):
             speed.reset()
         for pi in self._pi:
             pi.reset()
+        self._sent_zero = self.stop_confirmed = False
         self._take_counts(first.counts, now_ns)
         self._last_ok_ns = self._last_cycle_ns = now_ns
 
@@ -212,12 +215,14 @@ class IcoBoardBoard(Board):
             self._pi[1].reset()
             duties[0] = duties[1] = 0
         else:
+            self.stop_confirmed = False
             duties[0] = round(self._pi[0].step(left, self.speed_left, dt))
             duties[1] = round(self._pi[1].step(right, self.speed_right, dt))
         self.duty_left, self.duty_right = duties[0] / DUTY_FULL, duties[1] / DUTY_FULL
         self.late += transport.drain()
-        previous_seq = self._seq
+        previous_seq, previous_zero = self._seq, self._sent_zero
         self._seq = (self._seq + 1) & 0xFF
+        self._sent_zero = stopped
         frame = self.wire.request(Op.TRANSMIT, seq=self._seq, duties=duties)
         # Wait for the reply for at most half a period, so the cycle keeps its deadline.
         wait = 0.5 * self.period_s
@@ -228,11 +233,13 @@ class IcoBoardBoard(Board):
             if not until_ns:  # a reply cut short on purpose arrives late, and is drained then
                 self.timeouts += 1
         else:
-            self._reply(raw, previous_seq, time.monotonic_ns())
+            self._reply(raw, previous_seq, time.monotonic_ns(), previous_zero and stopped)
         if now_ns - self._last_ok_ns > GIVE_UP_S * 1e9:
             raise BoardError(f"{self._where}: no valid reply for {GIVE_UP_S * 1e3:.0f} ms")
 
-    def _reply(self, raw: bytes, previous_seq: int, now_ns: int) -> None:
+    def _reply(self, raw: bytes, previous_seq: int, now_ns: int, confirms: bool = False) -> None:
+        """A reply to the frame after ``previous_seq``; ``confirms``: that frame, and this one,
+        were stopped ones, so a reply showing the board took it confirms the stop."""
         try:
             reply = self.wire.parse_reply(Op.TRANSMIT, raw)
         except BadCrc:
@@ -258,9 +265,16 @@ class IcoBoardBoard(Board):
                 check_ack(previous_seq, reply)
             except SequenceGap:
                 self.lost += 1  # our previous frame never arrived; this reply is still good
+            else:
+                # v2: the board acknowledges the zero-duty frame it received and applied.
+                self.stop_confirmed = self.stop_confirmed or confirms
         elif reply.head != Op.TRANSMIT:
             self.garbage_bytes += len(raw)  # v1 has no CRC: a wrong byte 0 is all we can see
             return
+        else:
+            # v1 acknowledges nothing: that the board, running, answered the exchange after
+            # the zero-duty frame is all the evidence there is.
+            self.stop_confirmed = self.stop_confirmed or confirms
         self._take_counts(reply.counts, now_ns)
         self._last_ok_ns = now_ns
         self.exchanges += 1

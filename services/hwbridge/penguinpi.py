@@ -2,22 +2,41 @@
 
 The board runs its own 50 Hz wheel PI controller; we send velocity *demands*
 (10 · demand = encoder counts/s, dithered so the average is exact:
-`control.DemandDither`) and read encoder
-counts back with MULTI_SET_VEL_GET_ENC (set payload right-then-left, reply
-left-then-right). A 7-byte request and 9-byte reply take ~1.4 ms on the wire,
-so this exchange runs at ``hwbridge.serial_rate_hz`` (200 Hz), not at the
-cycle rate.
+`control.DemandDither`) and read encoder counts back with MULTI_SET_VEL_GET_ENC
+(set payload right-then-left, reply left-then-right). A 7-byte request and
+9-byte reply take ~1.4 ms on the wire, so this exchange runs at
+``hwbridge.serial_rate_hz`` (200 Hz), not at the cycle rate.
 
 The cycle never waits on the link: each period it reads whatever bytes have
-arrived (non-blocking), feeds them to `icefloe.wire.penguinpi.Parser`
-(frames vs the board's text lines), and writes at most one new request when
-none is in flight. One GET in flight at a time, matched by address and opcode:
-a reply that matches nothing (late, duplicated) is counted, not used.
+arrived (non-blocking), feeds them to `icefloe.wire.penguinpi.Parser` (frames
+vs the board's text lines), and writes at most one new request when none is
+in flight.
 
-Around the wheel exchange, about 10 Hz each: battery voltage and current
-(ADC_GET_SMOOTH), the user button S4 (HAT_GET_BUTTON) and the DIP switch
-(HAT_GET_DIP). LED, LED array, screen and text commands are SETs: the board
-never acknowledges them, so they are written between requests.
+**Matching replies.** The link has no sequence numbers, and a reply can come
+after its request timed out (a slow board, a slow host). Replies come back in
+the order of the requests, so after a timeout we *probe*: the next requests
+are of other kinds (address and opcode) than the one that timed out, and once
+one of them is answered, every earlier reply has come or never will. Until
+then, a reply of the timed-out kind is counted as ``late`` and dropped, never
+taken for an answer. The wheel exchange has three forms for this
+(MULTI_SET_VEL_GET_ENC; MULTI_SET_VEL + MULTI_GET_ENC; MULTI_SET_VEL + another
+GET), so it never waits for a probe of its own.
+
+**Stopping.** The firmware's PI controller keeps its integrator when the demand
+goes to 0, and its output (the PWM duty, written every 20 ms) stays at 4-7 %:
+a motor that hums and creeps. Its integral gain is the one switch it offers:
+with Kvi = 0 it clears the integrator (``sum := 0``) and, with Kvp = 0, drives
+zero duty at its next 20 ms control step. So while stopped we hold
+Kvi = 0 (and Kvp = 0 always); driving sets Kvi = 1, the firmware's default,
+first. A stop is *confirmed* once both gains read back as 0 and a 20 ms
+control step has passed since the board took them (`stop_confirmed`).
+
+Around the wheel exchange, every 1/60 s in turn: battery voltage and current
+(ADC_GET_SMOOTH, so ``hw/battery`` at 10 Hz), the user button S4
+(HAT_GET_BUTTON), the DIP switch (HAT_GET_DIP), and both integral gains (a
+gain the line lost is written again). LED, LED array, screen and text commands
+are SETs: the board never acknowledges them, so they are written between
+requests.
 """
 
 from __future__ import annotations
@@ -37,33 +56,57 @@ from icefloe.wire.penguinpi import (
     Frame,
     HatOp,
     LedOp,
+    MotorOp,
     MultiOp,
     ParseError,
     TextLine,
 )
 
 from .board import MSG_BOARD, MSG_WARNING, Board, Say
-from .control import DemandDither, SpeedEstimator, Unwrapper, metres_per_tick
+from .control import (
+    PENGUINPI_CONTROL_PERIOD_NS,
+    DemandDither,
+    SpeedEstimator,
+    Unwrapper,
+    metres_per_tick,
+)
 from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT
 
 BYTE_NS = 10 * 1_000_000_000 // 115200
 """One byte (start + 8 data + stop bits) at 115200 baud, ns (~87 µs)."""
 REPLY_TIMEOUT_NS = 20_000_000
-"""A GET with no reply after this long is counted as a timeout and forgotten."""
-POLL_PERIOD_NS = 25_000_000
-"""Slow polls, round-robin over 4 readings: each one at 10 Hz."""
+"""A GET with no reply after this long is counted as a timeout and its kind probed past."""
+QUIET_NS = 3 * REPLY_TIMEOUT_NS
+"""When every kind of request has timed out, nothing is asked until the line has been silent
+this long: the replies given up on are not coming any more."""
+POLL_PERIOD_NS = 1_000_000_000 // 60
+"""Slow polls, round-robin over 6 readings: each one at 10 Hz."""
+DRIVE_KVI = 1
+"""Integral gain while driving: the firmware's default."""
+CONFIRM_AFTER_NS = PENGUINPI_CONTROL_PERIOD_NS + 1_000_000
+"""A stop is confirmed this long after a reply showed the board had taken the zero gains: by
+then its 20 ms control step has run with them (zero duty, integrator cleared)."""
 LED_ADDRESS = {1: Address.AD_LED_R, 2: Address.AD_LED_2, 3: Address.AD_LED_3, 4: Address.AD_LED_4}
 """`Led.led` number -> firmware address."""
 TEXT_CHUNK = 32
 """Bytes of user text per write: well inside the firmware's 64-byte receive ring."""
 _TEXT_OK = frozenset(range(0x20, 0x7F)) | {0x0A, 0x0C}
 
-# The slow polls: (address, opcode), in the order they take turns.
-POLLS = (
+Kind = tuple[int, int]
+"""A request's (address, opcode): all a reply has to say what it answers."""
+WHEEL: Kind = (Address.AD_MULTI, MultiOp.MULTI_SET_VEL_GET_ENC)
+WHEEL_GET: Kind = (Address.AD_MULTI, MultiOp.MULTI_GET_ENC)
+GAIN_RIGHT: Kind = (Address.AD_MOTOR_R, MotorOp.MOTOR_GET_KVI)
+GAIN_LEFT: Kind = (Address.AD_MOTOR_L, MotorOp.MOTOR_GET_KVI)
+BUTTON: Kind = (Address.AD_HAT, HatOp.HAT_GET_BUTTON)
+# The slow polls, in the order they take turns.
+POLLS: tuple[Kind, ...] = (
     (Address.AD_ADC_V, AdcOp.ADC_GET_SMOOTH),
-    (Address.AD_HAT, HatOp.HAT_GET_BUTTON),
+    BUTTON,
     (Address.AD_ADC_C, AdcOp.ADC_GET_SMOOTH),
     (Address.AD_HAT, HatOp.HAT_GET_DIP),
+    GAIN_RIGHT,
+    GAIN_LEFT,
 )
 
 
@@ -74,6 +117,21 @@ def board_text(text: bytes) -> bytes:
     non-ASCII render as garbage glyphs on the OLED.
     """
     return bytes(b for b in text if b in _TEXT_OK)
+
+
+def set_gains(kvi: int) -> bytes:
+    """MOTOR_SET_KVI to both motors (right, then left)."""
+    value = ppi.pack_int16(kvi)
+    return (ppi.encode_frame(Address.AD_MOTOR_R, MotorOp.MOTOR_SET_KVI, value)
+            + ppi.encode_frame(Address.AD_MOTOR_L, MotorOp.MOTOR_SET_KVI, value))
+
+
+STOP_FRAMES = set_gains(0) + ppi.encode_frame(Address.AD_MULTI, MultiOp.MULTI_ALL_STOP)
+"""Integral gains 0, then demands 0: at its next control step the firmware drives zero duty
+and clears both integrators (gains first: a step between the two then already drives 0)."""
+OPEN_FRAMES = (STOP_FRAMES + ppi.encode_frame(Address.AD_MOTOR_R, MotorOp.MOTOR_SET_KVP, ppi.pack_int16(0))
+               + ppi.encode_frame(Address.AD_MOTOR_L, MotorOp.MOTOR_SET_KVP, ppi.pack_int16(0)))
+"""On connecting: stopped, and proportional gains 0 whatever an earlier program set."""
 
 
 class PenguinPiBoard(Board):
@@ -93,8 +151,25 @@ class PenguinPiBoard(Board):
         self._dither = (DemandDither(config.geometry), DemandDither(config.geometry))
         self._ser: serial.Serial | None = None
         self._parser = ppi.Parser()
-        self._inflight: tuple[int, int] | None = None
+        # the request in flight, and the kinds we gave up on (see "Matching replies")
+        self._inflight: Kind | None = None
+        self._inflight_no = 0
         self._inflight_deadline = 0
+        self._requests = 0
+        """GETs written so far; a reply to GET number n shows the board took every byte before it."""
+        self._stale: set[Kind] = set()
+        self._heard_ns = 0
+        """When bytes last came from the board."""
+        # the integral gains (see "Stopping")
+        self._gain = 0
+        """The integral gain written last (what the board has, unless the line lost it)."""
+        self._gain_write = False
+        """Write `_gain_wanted` with the next request (a start, or a gain the board lost)."""
+        self._gain_request = 0
+        """Number of the first GET written after the gains: its reply shows they were taken."""
+        self._gain_taken_ns = 0
+        """When that reply came (0: not yet)."""
+        self._readback: dict[Kind, int | None] = {GAIN_RIGHT: None, GAIN_LEFT: None}
         self._next_exchange = 0
         self._next_poll = 0
         self._was_stopped = True
@@ -116,12 +191,16 @@ class PenguinPiBoard(Board):
             raise BoardError(f"{self.port_name}: cannot open: {exc}") from None
         self._parser.reset()
         self._inflight = None
+        self._stale.clear()
         self._unsent = b""
         for unwrap in self._unwrap:
             unwrap.rebase()
         for speed in self._speed:
             speed.reset()
-        self._write(ppi.encode_frame(Address.AD_MULTI, MultiOp.MULTI_ALL_STOP))
+        self._was_stopped = True
+        self.stop_confirmed = False
+        self._write(OPEN_FRAMES)
+        self._gains_written(0)
         self._next_exchange = self._next_poll = now_ns
 
     def close(self) -> None:
@@ -131,12 +210,17 @@ class PenguinPiBoard(Board):
             self._ser = None
 
     def stop(self) -> None:
-        """MULTI_ALL_STOP, waiting until it has left (a few hundred µs)."""
+        """MULTI_ALL_STOP and both integral gains 0, waiting until they have left (~1.5 ms).
+
+        The gains stay 0 after we are gone: the firmware then drives zero duty with a
+        cleared integrator until someone sets them again (hwbridge does when it drives;
+        a reset or power cycle restores the firmware's default Kvi = 1).
+        """
         if self._ser is None:
             return
         with contextlib.suppress(Exception):
             self._ser.write_timeout = 0.05
-            self._ser.write(self._unsent + ppi.encode_frame(Address.AD_MULTI, MultiOp.MULTI_ALL_STOP))
+            self._ser.write(self._unsent + STOP_FRAMES)
             self._ser.flush()
         self._unsent = b""
 
@@ -161,38 +245,107 @@ class PenguinPiBoard(Board):
         except (serial.SerialException, OSError) as exc:
             raise BoardError(f"{self.port_name}: read failed (link lost?): {exc}") from None
         if data:
+            self._heard_ns = now_ns
             self._receive(data, now_ns)
-        if stopped and not self._was_stopped:
-            self._next_exchange = now_ns  # a stop goes out as soon as the link is free
-        self._was_stopped = stopped
+        if stopped != self._was_stopped:
+            self._was_stopped = stopped
+            self.stop_confirmed = False
+            self._gain_write = True
+            if stopped:
+                # SETs are never answered, so they may go while a GET is in flight: at once.
+                self._write(self._unsent + STOP_FRAMES)
+                self._gains_written(0)
+                self.duty_left = self.duty_right = 0.0
+                self._next_exchange = now_ns  # then the wheel exchange, as soon as the link is free
         if self._inflight is not None and now_ns > self._inflight_deadline:
             self.timeouts += 1
+            self._stale.add(self._inflight)  # its reply may still come: probe past it
             self._inflight = None
         if self._unsent:
             self._write(self._unsent)
-            return
-        if self._inflight is not None:
-            return
+        elif self._inflight is None:
+            self._next_request(now_ns, 0.0 if stopped else left, 0.0 if stopped else right, stopped)
+        self._check_stop(now_ns, stopped)
+
+    def _next_request(self, now_ns: int, left: float, right: float, stopped: bool) -> None:
+        """The wheel exchange when due, else (stopping) a gain read-back, else a SET, else a poll.
+        Changed gains go out first, in the same write."""
+        first = b""
+        if self._gain_write:
+            first = set_gains(self._gain_wanted)
         if now_ns >= self._next_exchange:
-            demand_left = self._dither[0].step(0.0 if stopped else left, now_ns)
-            demand_right = self._dither[1].step(0.0 if stopped else right, now_ns)
+            demand_left = self._dither[0].step(left, now_ns)
+            demand_right = self._dither[1].step(right, now_ns)
             self.duty_left, self.duty_right = float(demand_left), float(demand_right)
-            self._request(Address.AD_MULTI, MultiOp.MULTI_SET_VEL_GET_ENC,
-                          ppi.pack_multi_set(demand_left, demand_right), now_ns)
+            speeds = ppi.pack_multi_set(demand_left, demand_right)
+            if WHEEL not in self._stale:
+                self._request(WHEEL, now_ns, first, speeds)
+            else:  # probing past a late wheel reply: set, then ask another way
+                first += ppi.encode_frame(Address.AD_MULTI, MultiOp.MULTI_SET_VEL, speeds)
+                if (kind := self._fresh(now_ns, WHEEL_GET, *POLLS)) is not None:
+                    self._request(kind, now_ns, first)
+                else:
+                    self._write(first)
             # Keep the rate without drifting, but never try to catch up a backlog.
             self._next_exchange = max(self._next_exchange + self.exchange_period_ns,
                                       now_ns + self.exchange_period_ns // 2)
+        elif stopped and self._gain_taken_ns and (kind := self._unread_gain()) is not None:
+            self._request(kind, now_ns, first)
         elif self._outbox:
-            self._write(self._outbox.popleft())
-        elif now_ns >= self._next_poll:
-            address, opcode = POLLS[self._poll_index]
-            self._poll_index = (self._poll_index + 1) % len(POLLS)
-            self._request(address, opcode, b"", now_ns)
+            self._write(first + self._outbox.popleft())
+        elif now_ns >= self._next_poll and (
+                kind := self._fresh(now_ns, *POLLS[self._poll_index:], *POLLS[:self._poll_index])):
+            self._poll_index = (POLLS.index(kind) + 1) % len(POLLS)
+            self._request(kind, now_ns, first)
             self._next_poll = now_ns + POLL_PERIOD_NS
+        elif first:
+            self._write(first)
+        else:
+            return
+        if first:
+            self._gains_written(self._gain_wanted, with_request=self._inflight is not None)
 
-    def _request(self, address: int, opcode: int, payload: bytes, now_ns: int) -> None:
-        self._write(ppi.encode_frame(address, opcode, payload))
-        self._inflight = (address, opcode)
+    @property
+    def _gain_wanted(self) -> int:
+        """The integral gain for now: 0 while stopped, the firmware's default while driving."""
+        return 0 if self._was_stopped else DRIVE_KVI
+
+    def _fresh(self, now_ns: int, *kinds: Kind) -> Kind | None:
+        """The first of ``kinds`` that is not waiting to be probed past, or None."""
+        for kind in kinds:
+            if kind not in self._stale:
+                return kind
+        # Every kind timed out and nothing answered (a board far behind, booting, or in its
+        # shutdown state): ask again once the line has been silent for a while.
+        if now_ns - max(self._heard_ns, self._inflight_deadline) < QUIET_NS:
+            return None
+        self._stale.clear()
+        return kinds[0]
+
+    def _unread_gain(self) -> Kind | None:
+        return next((kind for kind, value in self._readback.items()
+                     if value is None and kind not in self._stale), None)
+
+    def _gains_written(self, kvi: int, with_request: bool = False) -> None:
+        """Both integral gains just went out; ``with_request``: a GET right behind them."""
+        self._gain, self._gain_write = kvi, False
+        # The reply to the GET written with them, else to the next one, shows they arrived.
+        self._gain_request = self._requests if with_request else self._requests + 1
+        self._gain_taken_ns = 0
+        self._readback = dict.fromkeys(self._readback)
+
+    def _check_stop(self, now_ns: int, stopped: bool) -> None:
+        """Stopped, and shown to be: zero gains read back, and a control step since they were taken."""
+        if (stopped and not self.stop_confirmed and self._gain == 0 and not self._gain_write
+                and self._gain_taken_ns and now_ns >= self._gain_taken_ns + CONFIRM_AFTER_NS
+                and all(value == 0 for value in self._readback.values())):
+            self.stop_confirmed = True
+
+    def _request(self, kind: Kind, now_ns: int, first: bytes = b"", payload: bytes = b"") -> None:
+        """Write ``first`` (SETs), then the GET ``kind``; it is in flight until answered or timed out."""
+        self._write(first + ppi.encode_frame(kind[0], kind[1], payload))
+        self._requests += 1
+        self._inflight, self._inflight_no = kind, self._requests
         self._inflight_deadline = now_ns + REPLY_TIMEOUT_NS
 
     def _receive(self, data: bytes, now_ns: int) -> None:
@@ -210,10 +363,25 @@ class PenguinPiBoard(Board):
         self._parser.garbage = 0
 
     def _frame(self, frame: Frame, now_ns: int) -> None:
-        if self._inflight != (frame.address, frame.opcode):
-            self.unmatched += 1
+        kind = (frame.address, frame.opcode)
+        if kind != self._inflight:
+            if kind in self._stale:
+                # The reply to the request of this kind that timed out (the only one: a kind is
+                # not asked again until then): never taken for the answer to another request.
+                self._stale.discard(kind)
+                self.late += 1
+                if kind == BUTTON:  # its read cleared the board's count: keep the presses
+                    with contextlib.suppress(ValueError):
+                        self.button_presses += ppi.unpack_uint8(frame.payload)
+            else:
+                self.unmatched += 1
             return
+        # Replies come in request order: everything asked before this one has been answered
+        # by now, or never will be.
         self._inflight = None
+        self._stale.clear()
+        if self._inflight_no >= self._gain_request and not self._gain_taken_ns:
+            self._gain_taken_ns = now_ns  # the board had taken the gains before it answered
         try:
             if frame.address == Address.AD_MULTI:
                 left, right = ppi.unpack_multi_get(frame.payload)
@@ -224,6 +392,8 @@ class PenguinPiBoard(Board):
                 self.speed_left = self._speed[0].update(now_ns, self.ticks_left)
                 self.speed_right = self._speed[1].update(now_ns, self.ticks_right)
                 self.exchanges += 1
+            elif kind in self._readback:
+                self._gain_read(kind, ppi.unpack_int16(frame.payload))
             elif frame.address == Address.AD_ADC_V:
                 self.battery_voltage = ppi.unpack_float(frame.payload) / 1000.0  # mV -> V
             elif frame.address == Address.AD_ADC_C:
@@ -238,6 +408,18 @@ class PenguinPiBoard(Board):
                 self.dip = value >> 4 if value > 15 else value
         except ValueError:
             self.garbage_bytes += len(frame.payload)  # right address and opcode, wrong length
+
+    def _gain_read(self, kind: Kind, value: int) -> None:
+        """A motor's integral gain, read back."""
+        if self._gain_write or self._inflight_no < self._gain_request:
+            return  # asked before the gains we are about to write, or just wrote
+        if value != self._gain:
+            # The line lost (or the firmware rejected) our SET: write both again.
+            self.say(MSG_WARNING, f"PenguinPi: motor {kind[0]:#x} integral gain is {value}, "
+                                  f"not {self._gain}; setting it again")
+            self._gain_write = True
+            return
+        self._readback[kind] = value
 
     def _text(self, line: str) -> None:
         if line.startswith("ERR:"):

@@ -14,7 +14,11 @@ Each period (``hwbridge.rate_hz``, 1 kHz by default):
 2. read the commands (seqlock), apply stop latch, deadman, speed limit and
    acceleration limit (`control`);
 3. run one board exchange (`board.Board.cycle`: never waits on the link);
-4. publish the state (seqlock) and forward at most one LED/text/screen command.
+   zero targets (a stop, the deadman, or a command of zero speed) put the board
+   in its stopped state: zero duty, controller cleared;
+4. publish the state (seqlock), with the number of the latest latched stop the
+   board has confirmed (``stop_confirmed``), and forward at most one
+   LED/text/screen command.
 
 A cycle that ends after the next deadline is an overrun: it is counted and the
 missed deadlines are skipped, not caught up in a burst.
@@ -149,6 +153,8 @@ class Cycle:
         # Loop statistics (the histogram itself lives in shared memory).
         self.cycles = self.overruns = self.period_sum = self.period_max = self.latency_max = 0
         self.stop_reason = 0
+        self.confirmed = 0
+        """The latest latched stop (by number) the board has confirmed."""
         self.io_dropped = 0
         self.target_left = self.target_right = 0.0
         self._state = [0] * len(STATE_FIELDS)
@@ -164,9 +170,9 @@ class Cycle:
         commands = self.shared.read_commands()
         if commands is None:  # the bus process was descheduled mid-write: stop for this period
             left = right = 0.0
-            fresh_ns, stop, epoch = 0, 1, self._epoch
+            fresh_ns, stop, epoch, stop_seq = 0, 1, self._epoch, self.confirmed
         else:
-            left, right, fresh_ns, stop, epoch = commands
+            left, right, fresh_ns, stop, epoch, stop_seq = commands
         if epoch != self._epoch:
             self._epoch = epoch
             self.period_max = self.latency_max = 0
@@ -184,9 +190,17 @@ class Cycle:
             right = limit if right > limit else -limit if right < -limit else right
             self.target_left = self.slew[0].step(left, self._last_dt)
             self.target_right = self.slew[1].step(right, self._last_dt)
+            # Zero speed is a stop for the board too: zero duty, not "hold zero" on an integrator.
+            stopped = self.target_left == 0.0 and self.target_right == 0.0
         self._board_step(now_ns, stopped)
+        self._confirm(stop, stop_seq)
         self._forward_io()
         self._publish()
+
+    def _confirm(self, stop: int, stop_seq: int) -> None:
+        """Report stop ``stop_seq`` confirmed once the board is verified at rest duty."""
+        if stop and self.link_up and self.board.stop_confirmed:
+            self.confirmed = max(self.confirmed, stop_seq)
 
     def stop_now(self, now_ns: int, deadline_ns: int) -> None:
         """Send a freshly latched stop to the board now, between two periods.
@@ -200,7 +214,8 @@ class Cycle:
         if not self.link_up or deadline_ns - now_ns < self.period_ns // KICK_GUARD_FRACTION:
             return  # no board to tell, or the period, due in a moment, tells it
         commands = self.shared.read_commands()
-        stop = 1 if commands is None else commands[3]  # mid-write: stop, as `step` does
+        # mid-write: stop, as `step` does (and confirm no new number)
+        stop, stop_seq = (1, self.confirmed) if commands is None else (commands[3], commands[5])
         if not stop or self.stop_reason != STOP_NONE:
             return  # no stop latched, or the wheels are stopped already
         self.stop_reason = STOP_LATCHED
@@ -210,6 +225,7 @@ class Cycle:
         self.kicks += 1
         # Stop waiting for the board's reply half the guard before the deadline.
         self._board_step(now_ns, True, deadline_ns - self.period_ns // (2 * KICK_GUARD_FRACTION))
+        self._confirm(stop, stop_seq)
         self._publish()
 
     def _forward_io(self) -> None:
@@ -262,7 +278,8 @@ class Cycle:
             b.garbage_bytes, b.board_errors,
             b.battery_voltage, b.battery_current, self._started,
             b.battery_ns, b.button_presses, b.dip, b.late, b.lost, self.io_dropped, 0,
-            os.getpid(), int(self.mismatch), b.watchdog, self.kicks, self.shared.stalled_reads, 0,
+            os.getpid(), int(self.mismatch), b.watchdog, self.kicks, self.shared.stalled_reads,
+            self.confirmed,
         )
         self.shared.write_state(s)
 

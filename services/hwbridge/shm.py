@@ -46,9 +46,11 @@ from .control import HIST_BINS
 
 # --------------------------------------------------------------------------- layout
 
-COMMANDS = struct.Struct("<ddqqq")
-"""target_left m/s, target_right m/s, fresh_ns (monotonic ns of the last motion command,
-0 = none), stop (1 = latched), stats_epoch (bumped by the bus side to restart the maxima)."""
+COMMANDS = struct.Struct("<ddqqqq")
+"""target_left m/s, target_right m/s, fresh_ns (monotonic ns at which the last motion command
+was issued, 0 = none: the deadman counts from it), stop (1 = latched), stats_epoch (bumped by
+the bus side to restart the maxima), stop_seq (stops latched so far: the cycle confirms them
+by this number)."""
 
 STATE = struct.Struct("<" + "q" * 6 + "d" * 6 + "q" * 12 + "d" * 3 + "q" * 13)
 """See `State` for the field order."""
@@ -64,7 +66,7 @@ STATE_FIELDS = (
     # board readings
     "battery_voltage", "battery_current", "rt_started",
     "battery_ns", "button_presses", "dip", "late", "lost", "io_dropped", "text_lost",
-    "pid", "mismatch", "watchdog", "kicks", "stalled_reads", "spare",
+    "pid", "mismatch", "watchdog", "kicks", "stalled_reads", "stop_confirmed",
 )  # fmt: skip
 
 IO_SLOTS = 32
@@ -191,12 +193,12 @@ class Shared:
     # ------------------------------------------------------------------ commands (bus -> RT)
 
     def write_commands(self, left: float, right: float, fresh_ns: int, stop: bool,
-                       epoch: int) -> None:
-        self._write(OFF_CMD_SEQ, COMMANDS, OFF_CMD, left, right, fresh_ns, int(stop), epoch)
+                       epoch: int, stop_seq: int = 0) -> None:
+        self._write(OFF_CMD_SEQ, COMMANDS, OFF_CMD, left, right, fresh_ns, int(stop), epoch, stop_seq)
 
-    def read_commands(self) -> tuple[float, float, int, int, int] | None:
-        """(target_left, target_right, fresh_ns, stop, stats_epoch); None if the bus process is in
-        the middle of a write (see `_read`)."""
+    def read_commands(self) -> tuple[float, float, int, int, int, int] | None:
+        """(target_left, target_right, fresh_ns, stop, stats_epoch, stop_seq); None if the bus
+        process is in the middle of a write (see `_read`)."""
         return self._read(OFF_CMD_SEQ, COMMANDS, OFF_CMD)  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ io ring (bus -> RT)

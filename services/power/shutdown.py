@@ -53,7 +53,7 @@ class Shutdown:
     async def _finish(self) -> None:
         log, power = self._node.log, self._power
         try:
-            wheels = await self._node.query(keys.HALT, m.Stop(), timeout=power.halt_timeout_s)
+            wheels = await self._node.query(keys.HALT, m.Halt(), timeout=power.halt_timeout_s)
             speeds = (wheels.speed_left, wheels.speed_right)
             if max(abs(v) for v in speeds) < STOPPED_SPEED:
                 log.info("hwbridge confirmed the wheels stopped")

@@ -99,13 +99,16 @@ class Simulator:
         if isinstance(self.board, IcoBoardSim):  # every frame, and what went wrong
             ico = self.board.model
             last, bad, trips = ico.last_frame, ico.counters.bad_frames, ico.counters.watchdog_trips
+            integrators = (0, 0)  # the icoBoard's controller runs in hwbridge
             leds = 0
         else:  # the PenguinPi: its last good datagram, and its error count
             model = self.board.model
             frame = model.last_datagram
             last = penguinpi.encode_frame(frame.address, frame.opcode, frame.payload) if frame else b""
             bad, trips = model.errors, 0
+            integrators = (model.left.integral, model.right.integral)
             leds = sum(1 << n for n, name in enumerate(LED_NUMBERS) if model.led_lit(name))
+        ticks = self.world.counts()
         return m.SimState(
             stamp=time.time_ns(), sim_time=self.clock.now, seed=self.world.seed,
             board=self.kind, x=x, y=y, theta=theta, duty_left=duty[0], duty_right=duty[1],
@@ -113,6 +116,9 @@ class Simulator:
             battery_voltage=self.world.battery_voltage, battery_current=self.world.battery_current,
             last_frame=bytes(last), bad_frames=bad, watchdog_trips=trips,
             gpio_button=self.gpio.button, gpio_request=self.gpio.request, gpio_ack=self.gpio.ack,
+            peak_duty=self.world.peak_duty, ticks_left=ticks[0], ticks_right=ticks[1],
+            integrator_left=integrators[0], integrator_right=integrators[1],
+            zero_duty_since=self.world.zero_duty_since, counts_changed=self.world.counts_changed,
             leds=leds)
 
     # ------------------------------------------------------------------ handles
@@ -161,6 +167,13 @@ class Simulator:
             if r.count < 1:
                 raise ValueError(f"count must be >= 1, got {r.count}")
             model.line.drop(r.count, r.direction)
+        elif r.action == "mark":
+            self.world.mark()
+        elif r.action == "delay_replies":
+            if isinstance(self.board, IcoBoardSim):
+                self.board.delay_replies(r.seconds, r.count)
+            else:
+                model.line.delay(r.seconds, r.count, "tx")
         elif r.action == "force_descriptor":
             if self.config.board.kind != "icoboard":
                 raise ValueError("only the icoBoard has a START descriptor")

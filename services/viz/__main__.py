@@ -28,10 +28,15 @@ def add_service_arguments(parser: argparse.ArgumentParser) -> None:
     add_arguments(parser)
 
 
+def check_viewer(args: argparse.Namespace, how: str = "") -> None:
+    """A ConfigError, in one line, if no window can open here (checked before seconds of importing Rerun)."""
+    if not (args.save or args.serve) and (problem := display_problem()):
+        raise ConfigError(f"cannot open the Rerun viewer: {problem}; {how or how_to_look()}")
+
+
 def start(args: argparse.Namespace) -> None:
     """Run the viz service with parsed options until it ends or Ctrl-C."""
-    if not (args.save or args.serve) and (problem := display_problem()):  # before seconds of importing Rerun
-        raise ConfigError(f"cannot open the Rerun viewer: {problem}; {how_to_look()}")
+    check_viewer(args)
     try:
         from .app import main  # imports Rerun (the `viz` extra)
     except ImportError as exc:
@@ -43,6 +48,19 @@ def start(args: argparse.Namespace) -> None:
     for endpoint in args.connect or []:
         common += ["--connect", endpoint]
     run(functools.partial(main, options=options_from(args)), common, description="icefloe viz")
+
+
+def show_recording(args: argparse.Namespace) -> int:
+    """``icefloe viz FILE.mcap``: the same view of a recording (exit status)."""
+    check_viewer(args, "add --save FILE.rrd and open that on a machine with a screen (rerun FILE.rrd), "
+                       "or --serve and open http://localhost:9090 in a browser")
+    try:
+        from .playback import show_files  # imports Rerun (the `viz` extra)
+    except ImportError as exc:
+        raise ConfigError(f"viz needs the Rerun SDK: pip install 'icefloe[viz]' ({exc})") from None
+    from icefloe.runtime import load_config
+
+    return show_files(args.files, load_config(args), options_from(args))
 
 
 def cli(argv: Sequence[str] | None = None) -> None:

@@ -156,6 +156,8 @@ async def publish(node: Node, robot: DemoRobot, duration: float | None = None,
 
 async def main(config: RobotConfig) -> None:
     async with Node("demo", config) as node:
+        node.log.info("a made-up robot %r drives a circle; `icefloe viz --robot %s` shows it; Ctrl-C stops",
+                      config.name, config.name)
         await publish(node, DemoRobot(config, load_world(config.localizer.world).markers))
 
 

@@ -63,7 +63,7 @@ async def serve(robot: AsyncRobot, guest: zenoh.Session | None = None) -> None:
         await api.follow()  # runs until SIGINT/SIGTERM cancels us
     finally:
         with contextlib.suppress(Exception):
-            await robot.stop()  # whatever a client asked for, the robot stops with us
+            await robot.stop(confirm=False)  # whatever a client asked for, the robot stops with us
         await asyncio.shield(runner.cleanup())
 
 

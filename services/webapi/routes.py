@@ -22,7 +22,7 @@ from aiohttp import web
 
 from icefloe.client import AsyncRobot
 from icefloe.credentials import GUEST_USER
-from icefloe.errors import NotReachable
+from icefloe.errors import NotConfirmed, NotReachable
 from icefloe.router import access_control, permits
 from icefloe.runtime import Node
 from icefloe.schemas import keys
@@ -67,6 +67,9 @@ async def errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     except NotReachable as exc:
         log.warning("%s: %s", request.rel_url, exc)
         return error(503, f"robot not answering: {exc}")
+    except NotConfirmed as exc:
+        log.warning("%s: %s", request.rel_url, exc)
+        return error(503, f"stop not confirmed: {exc}")
 
 
 class Api:
@@ -179,6 +182,7 @@ class Api:
         return self.state()
 
     async def stop(self, request: web.Request) -> web.Response:
+        """Answers once hwbridge has confirmed the stop: the board runs zero duty."""
         self.demand = [0.0, 0.0]
         await self.robot.stop()
         return self.state()
