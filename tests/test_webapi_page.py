@@ -12,7 +12,7 @@ import pytest
 from browser import chromium, kill_browser
 from conftest import wait_for
 from test_hwbridge_helpers import deadman_delay, sim_state
-from webapi_helpers import webapi, webapi_robot
+from webapi_helpers import board, webapi, webapi_robot
 
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -170,7 +170,8 @@ async def test_closing_hiding_or_losing_the_page_stops_the_robot(robot, tmp_path
 
 
 async def test_the_old_speed_and_settings_forms(robot):
-    async with webapi(robot) as http, robot.node("tester") as node:
+    # The stand-in board confirms stops as hwbridge does (a stop answers once it is confirmed).
+    async with webapi(robot) as http, robot.node("tester") as node, board(robot):
         wheels_cmd = node.subscribe(keys.WHEELS_CMD, latest=False)
         stops = node.subscribe(keys.STOP, latest=False)
         leds = node.subscribe(keys.LEDS, latest=False)
