@@ -60,6 +60,8 @@ async def test_put_publishes_checked_json_and_refuses_the_rest(robot):
         assert status == 200 and sent["key"] == f"icefloe/{robot.name}/cmd/twist"
         twist = await asyncio.wait_for(anext(twists), 5)
         assert (twist.v, twist.w) == (0.1, -0.2)
+        # Numbered as the web API's own commands, so a stop sent after it wins (docs/hwbridge.md).
+        assert twist.sender and twist.seq > 0 and twist.stamp > 0
         assert (await http.send("PUT", "/bus/cmd/stop", ""))[0] == 200  # an empty body is an empty map
         await asyncio.wait_for(anext(stops), 5)
         refused = [

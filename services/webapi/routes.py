@@ -107,7 +107,7 @@ class Api:
                 self._callers[user].hub.pin(self.node.key(keys.LOG), history=LOG_HISTORY)
         self.acl = access_control([(robot.name, zenoh.user)]) if self.login is not None else None
         """Zenoh's rules, as the robot's router has them (`icefloe.router.access_control`)."""
-        self.bridge = Bridge(robot.name, self.caller, self.allowed, query_timeout=robot.timeout)
+        self.bridge = Bridge(robot.name, self.caller, self.allowed, self.order, query_timeout=robot.timeout)
         self.pages = Pages(self)
 
     def caller(self, request: web.Request) -> Caller:
@@ -121,6 +121,14 @@ class Api:
         if "Authorization" not in request.headers:
             return dataclasses.replace(self._callers[user], challenge=self.login.challenge)
         return self._callers[user]
+
+    def order(self, message: m.Message) -> m.Message:
+        """A command the HTTP client did not number (no ``sender``) is numbered as the web API's
+        next one, so hwbridge puts it and the stops around it in the order they came in here."""
+        if isinstance(message, m.Command) and not message.sender:
+            given = {f: getattr(message, f) for f in message.__struct_fields__ if f not in ("sender", "seq", "stamp")}
+            return self.node.command(type(message), **given)
+        return message
 
     def allowed(self, who: Caller, message: str, key_expr: str) -> bool:
         """Zenoh's decision for ``who`` sending ``message`` on ``key_expr`` (`icefloe.router.permits`)."""
