@@ -29,8 +29,8 @@ ensure_venv() {
 # root on Debian (tests/run.sh: Xvfb and Mesa's software renderers for the viewer tests). Otherwise
 # say so and go on: the tests that need them skip and say why.
 ensure_apt() {
-    local cmd="$1"; shift
-    command -v "$cmd" >/dev/null && return 0
+    local cmd="$1"; shift   # a command, or the path of a file the packages install
+    if [[ "$cmd" == /* ]]; then [ -e "$cmd" ] && return 0; else command -v "$cmd" >/dev/null && return 0; fi
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
         echo "== installing $* (apt-get)"
         { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@"; } >/dev/null \

@@ -8,6 +8,11 @@ wheel encoders, whenever someone asks:
     # then, from anywhere (any Zenoh tool will do):
     z_put -k icefloe/sim/student/forward -v '{"distance": 0.3}'
 
+Under `icefloe up` (a ``[programs.forward]`` table in the robot config) it needs no options:
+the robot's name, router and credentials file come in ``ICEFLOE_ROBOT``, ``ICEFLOE_CONNECT``
+and ``ICEFLOE_CREDENTIALS`` (docs/own-services.md). It holds the liveliness token
+``icefloe/<robot>/alive/forward``, so `icefloe status` lists it with the robot's own services.
+
 What it uses from the robot (schemas in schemas/json/, keys in each schema's
 "x-icefloe-keys"):
 
@@ -32,6 +37,7 @@ import itertools
 import json
 import logging
 import math
+import os
 import queue
 import signal
 import threading
@@ -114,7 +120,7 @@ class Checked:
 
 def connect(args: argparse.Namespace) -> tuple[zenoh.Session, str]:
     """Open a Zenoh session as a client of the robot's router; returns it and the robot name."""
-    name, endpoints, user, password = args.robot, [args.connect] if args.connect else [], "", ""
+    name, endpoints, user, password = args.robot, args.connect.split(",") if args.connect else [], "", ""
     if args.config:  # a robot config file: take what we need from it
         toml = tomllib.loads(Path(args.config).read_text())
         z = toml.get("zenoh", {})
@@ -150,11 +156,15 @@ def metres_per_tick(session: zenoh.Session, prefix: str) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description="Drive forward on request (raw Zenoh example).")
-    parser.add_argument("--robot", help="robot name (default: from --config, else sim)")
-    parser.add_argument("--connect", help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447")
+    env = os.environ.get  # what `icefloe up` tells the programs it runs
+    parser.add_argument("--robot", default=env("ICEFLOE_ROBOT"),
+                        help="robot name (default: $ICEFLOE_ROBOT, from --config, else sim)")
+    parser.add_argument("--connect", default=env("ICEFLOE_CONNECT"),
+                        help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447 (default: $ICEFLOE_CONNECT)")
     parser.add_argument("--config", help="robot config TOML (name, [zenoh] connect/user/password)")
-    parser.add_argument("--credentials", help="the robot's credentials file (to command a robot "
-                        "with access control)")
+    parser.add_argument("--credentials", default=env("ICEFLOE_CREDENTIALS") or None,
+                        help="the robot's credentials file, to command a robot with access control "
+                             "(default: $ICEFLOE_CREDENTIALS)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
 
@@ -193,6 +203,8 @@ def main() -> None:
 
     subs = [session.declare_subscriber(f"{prefix}/hw/wheels", on_wheels),
             session.declare_subscriber(f"{prefix}/student/forward", on_request)]
+    # "I am running": `icefloe status` lists the services that hold such a token.
+    alive = session.liveliness().declare_token(f"{prefix}/alive/{os.environ.get('ICEFLOE_SERVICE', 'forward')}")
     json_encoding = zenoh.Encoding("application/json")
     # Who we are, our commands' numbers, and a clock that never jumps back (the wall clock
     # once, then the monotonic clock): the robot learns how far it is off its own.
@@ -231,6 +243,7 @@ def main() -> None:
     session.put(f"{prefix}/cmd/stop", stop.json(**issued()), encoding=json_encoding)  # never leave it moving
     for sub in subs:
         sub.undeclare()
+    alive.undeclare()
     session.close()
 
 

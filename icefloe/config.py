@@ -7,12 +7,18 @@ the other file's, so a lab keeps one base file and twenty short robot files. A b
 `ConfigError` naming the file and the key, and nothing starts.
 
 Strings may contain ``{run_dir}`` (the robot's runtime folder, for sockets and
-pseudo-terminals) and ``{name}`` (the robot's name).
+pseudo-terminals), ``{name}`` (the robot's name) and ``{python}`` (the Python icefloe runs
+on, for your own Python programs).
 
 The runtime folder is private to the user the services run as (`private_dir`): by default
 ``$XDG_RUNTIME_DIR/icefloe/<name>`` (the user's own runtime folder, made by the login
 manager), or ``<tmp>/icefloe-<uid>/<name>`` where there is none. Nothing in it is shared
 with other users of the machine: the simulator's sockets, the router's password file.
+
+Your own services are ``[programs.<name>]`` tables (`Program`): any program, in any
+language, that `icefloe up` runs beside its own services (docs/own-services.md). A program's
+folder (``cwd``) defaults to the folder of the file that defines it, so a config and its
+programs travel together, also through ``extends``.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from __future__ import annotations
 import math
 import os
 import stat
+import sys
 import tempfile
 import tomllib
 from pathlib import Path
@@ -318,13 +325,38 @@ class Zenoh(Section):
     """Extra Zenoh JSON5 config file merged into the router's."""
 
 
+class Program(Section):
+    """One of your own services (``[programs.<name>]``): a program in any language that
+    `icefloe up` starts, supervises, restarts and stops like its own services. It gets the
+    robot's name, router and credentials in ``ICEFLOE_*`` environment variables
+    (`icefloe.launcher.program_environment`, docs/own-services.md)."""
+
+    command: list[str]
+    """The program and its arguments, e.g. ``["{python}", "follower.py"]`` or ``["./drive.sh"]``.
+    A relative path is relative to ``cwd``; a bare name (``bash``) is looked up in PATH."""
+    env: dict[str, str] = {}
+    """Environment variables of its own, besides the ``ICEFLOE_*`` ones."""
+    cwd: str = ""
+    """Its working folder ("" = the folder of the config file that defines it)."""
+    restart: bool = True
+    """Start it again when it exits, with the same back-off as icefloe's services (false:
+    once it has exited, it stays stopped; the rest of the robot runs on)."""
+
+
+RESERVED_NAMES = {*ALL_SERVICES, "router", "viz", "up", "cli"}
+"""Names a program may not have: icefloe's own processes."""
+
+
 class RobotConfig(Section):
     name: str = "sim"
     run_dir: str = ""
     """Runtime folder for sockets, pseudo-terminals and the router's password file, private to
     the services' user ("" = $XDG_RUNTIME_DIR/icefloe/<name>, or <tmp>/icefloe-<uid>/<name>)."""
     services: list[str] = msgspec.field(default_factory=lambda: list(ALL_SERVICES))
-    """Services `icefloe up` starts (besides the router), in order; missing ones are skipped."""
+    """Services `icefloe up` starts (besides the router), in order; missing ones are skipped.
+    May name `programs` to place them; programs not named start after the services."""
+    programs: dict[str, Program] = {}
+    """Your own services, ``[programs.<name>]`` (see `Program`)."""
     board: Board = Board()
     geometry: Geometry = Geometry()
     hwbridge: Hwbridge = Hwbridge()
@@ -410,10 +442,23 @@ def read_toml(path: Path, what: str = "config file") -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
 
 
+def _anchor_programs(data: dict[str, Any], folder: Path) -> None:
+    """Give each ``[programs.<name>]`` of one file that file's folder as its ``cwd`` (or resolve
+    its relative ``cwd`` there), before files are merged: the folder of the file that defines it."""
+    programs = data.get("programs")
+    if not isinstance(programs, dict):
+        return  # not a table: the type check after merging names the problem
+    for program in programs.values():
+        if isinstance(program, dict) and isinstance(program.get("cwd", ""), str):
+            cwd = Path(program.get("cwd", "")).expanduser()
+            program["cwd"] = str(cwd if cwd.is_absolute() else folder / cwd)
+
+
 def _read(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
     if path in seen:
         raise ConfigError(f"{path}: `extends` loops back to itself")
     data = read_toml(path)
+    _anchor_programs(data, path.parent)
     parent = data.pop("extends", None)
     if parent is None:
         return data
@@ -432,7 +477,9 @@ def _read(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
 
 def _expand(value: Any, names: dict[str, str]) -> Any:
     if isinstance(value, str):
-        return value.replace("{run_dir}", names["run_dir"]).replace("{name}", names["name"])
+        for placeholder, text in names.items():
+            value = value.replace(f"{{{placeholder}}}", text)
+        return value
     if isinstance(value, list):
         return [_expand(v, names) for v in value]
     if isinstance(value, dict):
@@ -448,6 +495,15 @@ def _field_path(message: str) -> tuple[str, str]:
     return where.rstrip("`").lstrip("."), text
 
 
+def _convert(value: Any, type_: type, where: str) -> None:
+    """msgspec.convert, its error's path starting at ``where`` (a table msgspec cannot name)."""
+    try:
+        msgspec.convert(value, type_)
+    except msgspec.ValidationError as exc:
+        text, sep, at = str(exc).rpartition(" - at `$")
+        raise msgspec.ValidationError(f"{text} - at `$.{where}{at}" if sep else f"{exc} - at `$.{where}`") from None
+
+
 def field_error(source: str, exc: msgspec.ValidationError) -> str:
     """``"<source>: <key path>: <problem>"`` from a msgspec validation error (for TOML files)."""
     where, text = _field_path(str(exc))
@@ -459,14 +515,19 @@ def field_error(source: str, exc: msgspec.ValidationError) -> str:
 def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
     """Typed config from a TOML-shaped dict; `ConfigError` names the source and the key."""
     try:
+        if isinstance(programs := data.get("programs"), dict):
+            for name, program in programs.items():  # one by one: an error names the program
+                _convert(program, Program, f"programs.{name}")
         config = msgspec.convert(data, RobotConfig)
     except msgspec.ValidationError as exc:
         raise ConfigError(field_error(source, exc)) from None
     if not config.name or any(c in config.name for c in "/*$#? "):
         raise ConfigError(f"{source}: name: {config.name!r} is not a usable robot name")
+    check_programs(config, source)
     check_lab(config.zenoh, config.zenoh.listen, source)
     run_dir = str(config.runtime_dir)
-    expanded = _expand(msgspec.to_builtins(config), {"run_dir": run_dir, "name": config.name})
+    expanded = _expand(msgspec.to_builtins(config), {"run_dir": run_dir, "name": config.name,
+                                                     "python": sys.executable})
     expanded["source"] = source
     zenoh = expanded["zenoh"]
     if zenoh["credentials"] and not zenoh["user"] and Path(zenoh["credentials"]).expanduser().exists():
@@ -475,6 +536,18 @@ def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
         creds = read(zenoh["credentials"])
         zenoh["user"], zenoh["password"] = creds.user, creds.password
     return msgspec.convert(expanded, RobotConfig)
+
+
+def check_programs(config: RobotConfig, source: str) -> None:
+    """`ConfigError` for a program that could never run: a name that is not a plain name or is
+    one of icefloe's own processes, or no command."""
+    for name, program in config.programs.items():
+        if not paths.NAME.fullmatch(name) or name in RESERVED_NAMES:
+            why = "is icefloe's own" if name in RESERVED_NAMES else "is not a plain name (letters, digits, _ . -)"
+            raise ConfigError(f"{source}: [programs.{name}]: the name {name!r} {why}")
+        if not program.command or not program.command[0]:
+            raise ConfigError(f"{source}: programs.{name}.command: give the program to run, "
+                              'e.g. ["{python}", "my_service.py"]')
 
 
 def protocol(endpoint: str) -> str:

@@ -7,18 +7,22 @@ says why, one line per problem. A real board (``board.backend = "hardware"``) ne
 gets the simulator.
 
 The router starts first (every service is a client of it), then the services
-listed in the robot config, in order. Each child's output is prefixed with its
+listed in the robot config, in order, and your own programs (``[programs.<name>]``,
+`program_environment` says what they are told). Each child's output is prefixed with its
 name. A child that dies is restarted with back-off (1 s, 2 s, 4 s ... 30 s; the
 back-off resets once it has run for a minute), except:
 
 * one that exits with `EXIT_CONFIG` (78: it refused the config; starting it again cannot help):
   then the whole robot stops, saying so;
 * one that exits 0 (it is done, e.g. the viewer was closed) or `CANNOT_START` (2: it cannot
-  start here, a missing device or a port in use, and said why): it is not restarted.
+  start here, a missing device or a port in use, and said why): it is not restarted;
+* a program with ``restart = false``.
 
 Ctrl-C (or SIGTERM) stops the services in reverse order with SIGTERM (a service exits
 cleanly, as on Ctrl-C; one still starting up just ends, without a traceback from the middle
-of an import), waits, and kills what is left, so no process stays behind.
+of an import), waits, and kills what is left, so no process stays behind. A program gets its
+signals in its whole process group, as a terminal delivers Ctrl-C: a shell script stops with
+the commands it is running.
 """
 
 from __future__ import annotations
@@ -47,14 +51,18 @@ MAX_BACKOFF = 30.0
 HEALTHY_AFTER = 60.0
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: on Linux, get SIGINT when the launcher dies, however it dies,
-    so a killed `icefloe up` leaves no service behind (and hwbridge still stops the wheels)."""
-    if sys.platform == "linux":
-        import ctypes
+def _die_with_parent(sig: int = signal.SIGINT) -> Callable[[], None]:
+    """In the child, before exec: on Linux, get ``sig`` when the launcher dies, however it dies,
+    so a killed `icefloe up` leaves no service behind (and hwbridge still stops the wheels).
+    Programs get SIGTERM: a shell script puts off SIGINT until the command it runs ends."""
+    def arm() -> None:
+        if sys.platform == "linux":
+            import ctypes
 
-        pr_set_pdeathsig = 1
-        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGINT)
+            pr_set_pdeathsig = 1
+            ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, sig)
+
+    return arm
 
 
 def available(service: str) -> bool:
@@ -65,10 +73,50 @@ def available(service: str) -> bool:
         return False
 
 
+def webapi_url(config: RobotConfig) -> str:
+    """Where this machine reaches the robot's web API (and its HTTP bridge to the bus)."""
+    host = config.webapi.host
+    if host in ("", "0.0.0.0", "::"):
+        host = "127.0.0.1"
+    return f"http://{f'[{host}]' if ':' in host else host}:{config.webapi.port}"
+
+
+def program_environment(config: RobotConfig, config_path: Path, name: str) -> dict[str, str]:
+    """The environment variables a program of yours gets from `icefloe up` (docs/own-services.md):
+
+    ``ICEFLOE_ROBOT``        the robot's name: its keys are ``icefloe/<robot>/...``
+    ``ICEFLOE_SERVICE``      the program's name (``[programs.<name>]``): its liveliness token is
+                             ``icefloe/<robot>/alive/<name>``
+    ``ICEFLOE_CONNECT``      the robot's Zenoh router, e.g. ``tcp/127.0.0.1:7447`` (comma-separated
+                             if several)
+    ``ICEFLOE_CREDENTIALS``  the robot's credentials file (user and password; set when the config
+                             names one): a path, so the password is never in an environment
+                             listing or on a command line
+    ``ICEFLOE_CONFIG``       the robot config file (icefloe's Python `run` reads it by default)
+    ``ICEFLOE_WEBAPI``       the web API and its HTTP bridge to the bus, e.g. ``http://127.0.0.1:8080``
+    """
+    env = {
+        "ICEFLOE_ROBOT": config.name,
+        "ICEFLOE_SERVICE": name,
+        "ICEFLOE_CONNECT": ",".join(config.zenoh.connect),
+        "ICEFLOE_CONFIG": str(config_path.resolve()),
+        "ICEFLOE_WEBAPI": webapi_url(config),
+    }
+    if config.zenoh.credentials and (creds := Path(config.zenoh.credentials).expanduser()).is_file():
+        env["ICEFLOE_CREDENTIALS"] = str(creds.resolve())
+    return env
+
+
 @dataclass
 class Child:
     name: str
     argv: list[str]
+    env: dict[str, str] = field(default_factory=dict)
+    """Besides the launcher's own environment."""
+    cwd: str | None = None
+    program: bool = False
+    """One of yours (``[programs.<name>]``): signalled as a process group."""
+    restart: bool = True
     process: asyncio.subprocess.Process | None = None
     started: float = 0.0
     restarts: int = 0
@@ -79,6 +127,7 @@ class Child:
 class Launcher:
     def __init__(self, config: RobotConfig, config_path: Path, services: list[str],
                  *, out: object = None) -> None:
+        """``services``: icefloe's own services and names of ``[programs.<name>]``, in order."""
         self.config = config
         self.out = out or sys.stdout
         width = max([len(s) for s in services] + [6])
@@ -86,7 +135,13 @@ class Launcher:
         base = [sys.executable, "-m"]
         cfg = ["--config", str(config_path)]
         self.children = [Child("router", [*base, "icefloe.router", *cfg])]
-        self.children += [Child(s, [*base, f"icefloe.services.{s}", *cfg]) for s in services]
+        for name in services:
+            if (program := config.programs.get(name)) is not None:
+                env = {**program_environment(config, config_path, name), **program.env}
+                self.children.append(Child(name, list(program.command), env, program.cwd or None,
+                                           program=True, restart=program.restart))
+            else:
+                self.children.append(Child(name, [*base, f"icefloe.services.{name}", *cfg]))
         self._stopping = False
         self._stop = asyncio.Event()
         self.refused: str | None = None
@@ -99,22 +154,33 @@ class Launcher:
         while line := await stream.readline():
             self.say(child.name, line.decode(errors="replace").rstrip())
 
-    async def _start(self, child: Child) -> None:
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        child.process = await asyncio.create_subprocess_exec(
-            *child.argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
-            env=env, start_new_session=True,  # our own Ctrl-C handling decides the order
-            preexec_fn=_die_with_parent,
-        )
+    async def _start(self, child: Child) -> bool:
+        """Start the child's process; False (said why) if it cannot be started at all."""
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", **child.env}
+        try:
+            child.process = await asyncio.create_subprocess_exec(
+                *child.argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+                env=env, cwd=child.cwd, start_new_session=True,  # our own Ctrl-C handling decides the order
+                preexec_fn=_die_with_parent(signal.SIGTERM if child.program else signal.SIGINT),
+            )
+        except OSError as exc:  # no such program, not executable, no such folder
+            where = f" in {child.cwd}" if child.cwd else ""
+            self.say(child.name, f"cannot start {child.argv[0]}{where}: {exc.strerror}")
+            return False
         child.started = time.monotonic()
         assert child.process.stdout is not None
         child.pumps = [asyncio.create_task(self._pump(child, child.process.stdout))]
+        return True
 
     async def _supervise(self, child: Child) -> None:
         while not self._stopping:
-            await self._start(child)
+            if not await self._start(child):
+                return  # it will not start by trying again: the rest of the robot runs on
             assert child.process is not None
             code = await child.process.wait()
+            if child.program:  # what it started and left behind (a killed script's curl) goes too
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(child.process.pid, signal.SIGKILL)
             await asyncio.gather(*child.pumps, return_exceptions=True)
             if self._stopping:
                 return
@@ -126,6 +192,9 @@ class Launcher:
                 return
             if code in DONE:  # it chose to end (the viewer was closed), or says restarting cannot help
                 self.say(child.name, f"exited with code {code}: {DONE[code]}; not restarting it")
+                return
+            if not child.restart:
+                self.say(child.name, f"exited with code {code}; not restarting it (restart = false)")
                 return
             if time.monotonic() - child.started > HEALTHY_AFTER:
                 child.backoff = 1.0
@@ -172,7 +241,10 @@ class Launcher:
         for child in reversed(self.children):
             if child.process and child.process.returncode is None:
                 with contextlib.suppress(ProcessLookupError):
-                    child.process.send_signal(signal.SIGTERM)
+                    if child.program:  # the script and the commands it runs
+                        os.killpg(child.process.pid, signal.SIGTERM)
+                    else:
+                        child.process.send_signal(signal.SIGTERM)
                 try:
                     await asyncio.wait_for(child.process.wait(), STOP_TIMEOUT)
                 except TimeoutError:
@@ -184,9 +256,10 @@ class Launcher:
 
 
 def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> int:
-    """Check the robot, then run the router and the ``wanted`` services that exist, until Ctrl-C.
+    """Check the robot, then run the router and the ``wanted`` services and programs that exist,
+    until Ctrl-C.
     Returns the exit status: 0, or `EXIT_CONFIG` when the robot cannot run with this config."""
-    services = [s for s in wanted if available(s)]
+    services = [s for s in wanted if s in config.programs or available(s)]
     notes = []
     if missing := [s for s in wanted if s not in services]:
         notes.append(f"not available yet, skipped: {', '.join(missing)}")

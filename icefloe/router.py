@@ -75,6 +75,29 @@ def access_control(owners: Sequence[tuple[str, str]], lab_protocols: Sequence[st
                for field in ("rules", "subjects", "policies")}}
 
 
+def permits(acl: dict, user: str, message: str, key_expr: str, flow: str = "ingress") -> bool:
+    """Whether Zenoh's ``acl`` (as `access_control` builds it) lets a session logged in as ``user``
+    send ``message`` (``put``, ``query``, ``declare_subscriber``, ...) on ``key_expr``: the router's
+    own decision, taken beforehand, so the web API's HTTP bridge can say no with a reason.
+
+    As Zenoh decides: a rule applies if it names the message and the flow and one of its key
+    expressions INCLUDES ``key_expr``; a deny rule wins, else an allow rule, else the default.
+    A subject is a user's if it names the user or names nothing (everyone); a subject of link
+    protocols or interfaces is a link's, never an HTTP client's.
+    """
+    def mine(subject: dict) -> bool:
+        conditions = {k for k, v in subject.items() if k != "id" and v is not None}
+        return not conditions or (conditions == {"usernames"} and user in subject["usernames"])
+
+    subjects = {s["id"] for s in acl["subjects"] if mine(s)}
+    rules = {r for p in acl["policies"] if subjects & set(p["subjects"]) for r in p["rules"]}
+    expr = zenoh.KeyExpr.autocanonize(key_expr)
+    verdicts = {r["permission"] for r in acl["rules"]
+                if r["id"] in rules and message in r["messages"] and flow in r["flows"]
+                and any(zenoh.KeyExpr(k).includes(expr) for k in r["key_exprs"])}
+    return "deny" not in verdicts and ("allow" in verdicts or acl.get("default_permission") == "allow")
+
+
 def owners_of(config: RobotConfig) -> list[Owner]:
     """The robot's own user, when its config asks for access control (else nobody: no login)."""
     if not config.zenoh.access_control:

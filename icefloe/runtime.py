@@ -625,8 +625,10 @@ async def open_session(config: RobotConfig, *, mode: str = "client", log: loggin
 
 def arguments(description: str, argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--config",
-                        help="robot config: a name (sim, penguin1) or a path to a .toml file (default: sim)")
+    # `icefloe up` tells your own programs their robot's config in ICEFLOE_CONFIG (launcher.py).
+    parser.add_argument("--config", default=os.environ.get("ICEFLOE_CONFIG") or None,
+                        help="robot config: a name (sim, penguin1) or a path to a .toml file "
+                             "(default: $ICEFLOE_CONFIG, else sim)")
     parser.add_argument("--connect", action="append", help="Zenoh endpoint of the robot, e.g. tcp/10.0.0.5:7447")
     parser.add_argument("--log-level", default="INFO")
     return parser.parse_args(argv)

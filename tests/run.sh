@@ -5,6 +5,9 @@ cd "$(dirname "$0")/.."
 . deploy/setup.sh
 ensure_venv dev
 ensure_apt Xvfb xvfb mesa-vulkan-drivers   # a display for the Rerun viewer tests and the screenshot
+ensure_apt chromium chromium   # a real browser for the robot's page (tests/test_webapi_page.py, Playwright drives it)
+# MessagePack for C and C++: the message code of examples/c and examples/cpp (tests/test_other_languages.py)
+ensure_apt /usr/include/msgpack.hpp libmsgpack-dev libmsgpack-cxx-dev
 echo "== ruff"
 .venv/bin/ruff check .
 echo "== pytest"

@@ -77,7 +77,7 @@ def test_the_wheel_holds_every_file_a_user_needs(wheel: Path) -> None:
     assert missing == [], (f"not in the wheel: {missing}; add them to [tool.setuptools.package-data] in "
                            "pyproject.toml (or, if only a checkout needs them, to NOT_SHIPPED here)")
     for shipped in ("icefloe/share/robots/sim.toml", "icefloe/share/worlds/lab.toml",
-                    "icefloe/share/zenoh/robot-acl.json5", "icefloe/share/systemd/icefloe@.service",
+                    "icefloe/share/zenoh/acl/owner.json5", "icefloe/share/systemd/icefloe@.service",
                     "icefloe/schemas/json/Pose.json"):
         assert shipped in inside
     assert not [n for n in inside if n.startswith(("tests/", "bench/", "examples/", "docs/"))]

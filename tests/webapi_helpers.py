@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -46,11 +47,48 @@ class Http:
         async with self.session.get(self.base + path, params=params or None) as r:
             return r.status, r.headers.get("Content-Type", ""), await r.text()
 
+    async def send(self, method: str, path: str, body: bytes | str | None = None,
+                   **params: Any) -> tuple[int, Any]:
+        """``method`` ``path`` with ``body``; returns (status, the JSON answer)."""
+        async with self.session.request(method, self.base + path, data=body, params=params or None) as r:
+            text = await r.text()
+            return r.status, json.loads(text) if text else None
+
+    async def events(self, path: str, count: int, timeout: float = 20.0, **params: Any) -> list[tuple[str, Any]]:
+        """The first ``count`` Server-Sent Events of ``path``: (event name, JSON data)."""
+        found: list[tuple[str, Any]] = []
+        async with self.session.get(self.base + path, params=params or None,
+                                    headers={"Accept": "text/event-stream"}) as r:
+            assert r.status == 200, await r.text()
+            assert r.headers["Content-Type"] == "text/event-stream"
+            async with asyncio.timeout(timeout):
+                async for name, data in sse_events(r.content):
+                    found.append((name, data))
+                    if len(found) >= count:
+                        break
+        return found
+
     async def raw(self, path_and_query: str) -> tuple[int, str, str]:
         """GET a URL exactly as written (no encoding by the client, like pibot_client's printfOLED)."""
         url = aiohttp.client.URL(self.base + path_and_query, encoded=True)
         async with self.session.get(url) as r:
             return r.status, r.headers.get("Content-Type", ""), await r.text()
+
+
+async def sse_events(stream: aiohttp.StreamReader) -> Any:
+    """(event, JSON data) of each Server-Sent Event in an HTTP body (comments skipped)."""
+    name, data = "message", []
+    async for line in stream:
+        text = line.decode().rstrip("\r\n")
+        if not text:
+            if data:
+                joined = "\n".join(data)
+                yield name, json.loads(joined) if joined[:1] in "[{" else joined
+            name, data = "message", []
+        elif text.startswith("event:"):
+            name = text[6:].strip()
+        elif text.startswith("data:"):
+            data.append(text[5:].strip())
 
 
 @contextlib.asynccontextmanager
@@ -182,4 +220,4 @@ async def board(robot: Robot) -> Any:
                 await task
 
 
-__all__ = ["TEXT", "Board", "Http", "board", "wait_for", "webapi", "webapi_robot"]
+__all__ = ["TEXT", "Board", "Http", "board", "sse_events", "wait_for", "webapi", "webapi_robot"]

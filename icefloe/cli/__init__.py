@@ -11,6 +11,7 @@
     gateware.py    gateware build, pins                the icoBoard's FPGA design
     snapshot.py    snapshot                            save a frame of the robot's camera
     calibrate.py   calibrate                           calibrate the robot's camera
+    scaffold.py    new-service                         a service of your own, ready to run and test
     completion.py  completion                          shell completion (argcomplete)
 
 A verb module has a ``register(verbs)`` function that adds its sub-parsers, each with
@@ -31,7 +32,7 @@ import argcomplete
 from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
 VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
-                "completion")
+                "scaffold", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\

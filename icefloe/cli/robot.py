@@ -21,7 +21,8 @@ def up(args: argparse.Namespace) -> int:
     if args.sim and cfg.board.backend != "sim":
         path = sim_override(path, cfg)
         cfg = config_mod.load(path)
-    services = args.only.split(",") if args.only else list(cfg.services)
+    services = args.only.split(",") if args.only else [*cfg.services, *(p for p in cfg.programs
+                                                                        if p not in cfg.services)]
     if not args.only and not args.no_viz:
         if (problem := viewer_problem()) is None:
             services.append("viz")  # the laptop's view of the robot

@@ -13,12 +13,14 @@ import asyncio
 import contextlib
 import math
 
+import msgspec
+import zenoh
 from aiohttp import web
 
 from icefloe.client import AsyncRobot
 from icefloe.config import RobotConfig
 from icefloe.errors import ConfigError
-from icefloe.runtime import run
+from icefloe.runtime import open_session, run
 
 from .routes import Api, ServerLog
 
@@ -34,17 +36,25 @@ async def main(config: RobotConfig) -> int | None:
     # A short timeout for bus waits: an HTTP client should hear "not answering" soon. clamp: the
     # old server let the board clamp demands up to 100 (0.53 m/s); hwbridge clamps them the same.
     robot = AsyncRobot(config=config, service="webapi", timeout=2.0, clamp=True)
+    guest = None
     try:
         await robot.open(connect_timeout=math.inf)  # a service waits for its router to come up
-        await serve(robot)
+        if config.zenoh.access_control:
+            # The HTTP bridge acts for guests through a session logged in as the guest, so the
+            # router checks them as it checks any guest (`routes.Api.caller`).
+            anyone = msgspec.structs.replace(config.zenoh, user="", password="")
+            guest = await open_session(msgspec.structs.replace(config, zenoh=anyone))
+        await serve(robot, guest)
     finally:
+        if guest is not None:
+            guest.close()
         await robot.close()  # stops the wheels if a client had set them moving
 
 
-async def serve(robot: AsyncRobot) -> None:
+async def serve(robot: AsyncRobot, guest: zenoh.Session | None = None) -> None:
     """Serve HTTP until cancelled (SIGINT/SIGTERM)."""
     settings = robot.config.webapi
-    api = Api(robot)
+    api = Api(robot, guest)
     # No access log; malformed requests become short rate-limited lines (ServerLog); an idle
     # connection is closed after KEEPALIVE_S (aiohttp keeps one an hour), so idle clients cost little.
     runner = web.AppRunner(api.app(), access_log=None, logger=ServerLog(robot.node.limited),

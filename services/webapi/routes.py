@@ -11,29 +11,38 @@ answers 503 with a message naming the bus key.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import logging
 import sys
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+import zenoh
 from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
 
 from icefloe.client import AsyncRobot
+from icefloe.credentials import GUEST_USER
 from icefloe.errors import NotConfirmed, NotReachable
 from icefloe.logs import LimitedLog, printable
+from icefloe.router import access_control, permits
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
 from . import params
-from .auth import owner_only
+from .auth import Login, owner_only
+from .bus import Bridge, Caller, HttpError, render
+from .fanout import Hub
+from .pages import Pages
 from .params import InvalidCommand
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 BOUNDARY = "frame"
+LOG_HISTORY = 50
+"""Log lines a new stream of ``log`` starts with (the robot's page shows them)."""
 S4 = 3
 """io/buttons number of the HAT's S4, the button the old /hat/button/get counted."""
 
@@ -105,7 +114,7 @@ class ServerLog(logging.LoggerAdapter):
 class Api:
     """The state the routes share: the robot on the bus and the PenguinPi extras."""
 
-    def __init__(self, robot: AsyncRobot) -> None:
+    def __init__(self, robot: AsyncRobot, guest: zenoh.Session | None = None) -> None:
         self.robot = robot
         self.node: Node = robot.node
         config = robot.config
@@ -124,6 +133,46 @@ class Api:
         self._screen = self.node.publisher(keys.BOARD_SCREEN)
         self._ledarray = self.node.publisher(keys.LEDARRAY)
         self._leds = self.node.publisher(keys.LEDS)
+        zenoh = config.zenoh
+        self.login = (Login(zenoh.user, zenoh.password, robot.name, self.node.limited)
+                      if zenoh.access_control else None)
+        """The owner's login on a robot with access control (`auth`), else None: anyone may do anything."""
+        self._callers: dict[str, Caller] = {}
+        """Who HTTP bridge requests act as, by Zenoh user: each with a session logged in as that
+        user, so the robot's router checks what they do too; the owner's is the service's own."""
+        for user, session in ((zenoh.user, self.node.session), (GUEST_USER, guest)):
+            if session is not None:
+                self._callers[user] = Caller(user, session, Hub(session, render))
+                # The page shows the last lines of the log.
+                self._callers[user].hub.pin(self.node.key(keys.LOG), history=LOG_HISTORY)
+        self.acl = access_control([(robot.name, zenoh.user)]) if self.login is not None else None
+        """Zenoh's rules, as the robot's router has them (`icefloe.router.access_control`)."""
+        self.bridge = Bridge(robot.name, self.caller, self.allowed, self.order, query_timeout=robot.timeout)
+        self.pages = Pages(self)
+
+    def caller(self, request: web.Request) -> Caller:
+        """Who an HTTP bridge request is from: on a robot with access control the user it logs in
+        as (no login: the guest), 401 for a wrong login; on a robot without, anyone."""
+        if self.login is None:
+            return self._callers[self.robot.config.zenoh.user]
+        user = self.login.user_of(request)
+        if user is None:
+            raise HttpError(401, f"wrong user or password for robot {self.robot.name}", self.login.challenge)
+        if "Authorization" not in request.headers:
+            return dataclasses.replace(self._callers[user], challenge=self.login.challenge)
+        return self._callers[user]
+
+    def order(self, message: m.Message) -> m.Message:
+        """A command the HTTP client did not number (no ``sender``) is numbered as the web API's
+        next one, so hwbridge puts it and the stops around it in the order they came in here."""
+        if isinstance(message, m.Command) and not message.sender:
+            given = {f: getattr(message, f) for f in message.__struct_fields__ if f not in ("sender", "seq", "stamp")}
+            return self.node.command(type(message), **given)
+        return message
+
+    def allowed(self, who: Caller, message: str, key_expr: str) -> bool:
+        """Zenoh's decision for ``who`` sending ``message`` on ``key_expr`` (`icefloe.router.permits`)."""
+        return self.acl is None or permits(self.acl, who.user, message, key_expr)
 
     async def follow(self) -> None:
         """Keep the DIP switch and count S4 presses (run as a task)."""
@@ -331,19 +380,25 @@ class Api:
         }
 
     def app(self) -> web.Application:
-        """The routes; with access control, the commands need the robot's own user and password."""
+        """The routes; with access control, the commands need the robot's own user and password,
+        and the HTTP bridge asks Zenoh's rules for the user a request logs in as."""
         middlewares = [errors]
-        zenoh = self.robot.config.zenoh
-        if zenoh.access_control:
-            middlewares.append(owner_only(self.commands(), zenoh.user, zenoh.password, self.robot.name,
-                                          self.node.limited))
+        if self.login is not None:
+            commands, forms = set(self.commands()), self.pages.commands()
+            middlewares.append(owner_only(
+                lambda r: r.path in commands or (r.method == "POST" and r.path in forms), self.login))
         app = web.Application(middlewares=middlewares)
         app[LIMITED] = self.node.limited
         for path, handler in {**self.commands(), **self.reads()}.items():
             app.router.add_get(path, handler)
+        self.bridge.routes(app)
+        self.pages.routes(app)
         app.on_shutdown.append(self._end_streams)
         return app
 
     async def _end_streams(self, app: web.Application) -> None:
         for task in list(self.streams):
             task.cancel()
+        await self.bridge.close()
+        for caller in self._callers.values():
+            caller.hub.close()
