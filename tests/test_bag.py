@@ -151,7 +151,8 @@ def test_json_input_bad_payloads_and_unknown_keys_are_kept_as_they_came(tmp_path
            for e in Bag([tmp_path / "run.mcap"]).entries()]
     # a good one is decoded and encoded again: unnumbered, as it was sent (sender "", seq 0: hwbridge's
     # ordering for commands without the fields, docs/hwbridge.md)
-    assert got == [("typed", codec.JSON, b'{"v":0.1,"w":0.0,"sender":"","seq":0,"stamp":0}'), ("raw", codec.JSON, b'{"v": "fast"}'),
+    assert got == [("typed", codec.JSON, b'{"v":0.1,"w":0.0,"sender":"","seq":0,"stamp":0}'),
+                   ("raw", codec.JSON, b'{"v": "fast"}'),
                    ("raw", codec.MSGPACK, b"\xc1\xc1"), ("raw", codec.MSGPACK, b"\x81\xa1a\x01")]
 
 
