@@ -8,7 +8,7 @@ import msgspec
 import pytest
 
 from icefloe import config as config_mod
-from icefloe.errors import BadPayload
+from icefloe.errors import BadPayload, ConfigError
 from icefloe.schemas import messages as m
 from icefloe.services.sim.simulator import Simulator
 from icefloe.sim.icoboard_gateware import GatewareBoardModel
@@ -18,7 +18,8 @@ from icefloe.wire.icoboard import Op, Wire
 def _config(tmp_path: Path, **sim: object):
     cfg = config_mod.load("sim-gateware")
     board = msgspec.structs.replace(cfg.board, sim_socket=str(tmp_path / "ico.sock"))
-    return msgspec.structs.replace(cfg, board=board, sim=msgspec.structs.replace(cfg.sim, seed=1, **sim))
+    return msgspec.structs.replace(cfg, board=board, run_dir=str(tmp_path),  # the socket is in the run folder
+                                   sim=msgspec.structs.replace(cfg.sim, seed=1, **sim))
 
 
 def test_the_config_picks_the_gateware_and_its_handles_work(tmp_path: Path) -> None:
@@ -43,5 +44,5 @@ def test_the_config_picks_the_gateware_and_its_handles_work(tmp_path: Path) -> N
 def test_the_gateware_speaks_protocol_2_only(tmp_path: Path) -> None:
     cfg = _config(tmp_path)
     cfg = msgspec.structs.replace(cfg, board=msgspec.structs.replace(cfg.board, protocol=1))
-    with pytest.raises(ValueError, match="protocol v2 only"):
+    with pytest.raises(ConfigError, match="protocol v2 only"):
         Simulator(cfg)

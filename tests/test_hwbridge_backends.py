@@ -7,8 +7,10 @@ board's end byte by byte. The cycle (`rt.Cycle`) runs on real shared memory.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
+import select
 import threading
 import time
 import tty
@@ -42,11 +44,16 @@ class BoardEnd:
         self.path.symlink_to(os.ttyname(slave))
         self._slave = slave
 
-    def read(self) -> bytes:
-        try:
-            return os.read(self.master, 4096)
-        except BlockingIOError:
-            return b""
+    def read(self, frames: int = 0) -> bytes:
+        """What the backend has written; with ``frames``, waits (up to 5 s) until that many whole
+        PenguinPi frames are there: the kernel hands a pseudo-terminal's bytes over in its own time."""
+        data, deadline = b"", time.monotonic() + 5.0
+        while True:
+            with contextlib.suppress(BlockingIOError):
+                data += os.read(self.master, 4096)
+            if len(ppi.Parser().feed(data)) >= frames or time.monotonic() > deadline:
+                return data
+            select.select([self.master], [], [], 0.05)
 
     def write(self, data: bytes) -> None:
         os.write(self.master, data)
@@ -265,7 +272,7 @@ def test_penguinpi_stop_does_not_wait_for_the_exchange_slot(penguin) -> None:
     assert poll.address == ppi.Address.AD_ADC_V      # the link is free: a slow poll goes
     end.write(ppi.encode_frame(poll.address, poll.opcode, ppi.pack_float(7400.0)))
     board.cycle(3 * MS, 0.0, 0.0, stopped=True)       # stop: at once, not at 6 ms
-    sent = end.read()
+    sent = end.read(frames=len(ppi.Parser().feed(STOP_FRAMES)) + 1)
     assert sent.startswith(STOP_FRAMES)               # gains 0 and MULTI_ALL_STOP...
     frame = ppi.Parser().feed(sent[len(STOP_FRAMES):])[0]
     assert frame.opcode == ppi.MultiOp.MULTI_SET_VEL_GET_ENC  # ...and the wheel exchange

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from .. import paths
 from ..config import RESERVED_NAMES
-from ..errors import ConfigError
+from ..errors import IcefloeError
 
 TEMPLATE = "example_service"
 """The name the template's files and code use; replaced by yours."""
@@ -27,10 +27,10 @@ def new_service(args: argparse.Namespace) -> int:
     if not MODULE_NAME.fullmatch(name) or name in RESERVED_NAMES:
         why = "is one of icefloe's own services" if name in RESERVED_NAMES else \
             "must be lower-case letters, digits and _, starting with a letter (a Python module name)"
-        raise ConfigError(f"new-service: {name!r} {why}")
+        raise IcefloeError(f"new-service: {name!r} {why}")
     folder = Path(args.dir or ".") / name
     if folder.exists():
-        raise ConfigError(f"new-service: {folder} exists already: choose another name or --dir")
+        raise IcefloeError(f"new-service: {folder} exists already: choose another name or --dir")
     template = paths.packaged("templates", "service")
     folder.mkdir(parents=True)
     for source in sorted(template.iterdir()):
