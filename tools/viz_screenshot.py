@@ -131,7 +131,11 @@ def screenshot(rrd: Path, out: Path) -> None:
                     raise
     finally:
         proc.terminate()
-        proc.wait(10)
+        try:
+            proc.wait(30)  # a starved machine may take a while to tear the viewer down
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 def main() -> None:
