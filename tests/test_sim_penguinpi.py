@@ -427,8 +427,10 @@ def live(tmp_path: Path):
     world = World(Geometry(), seed=1)
     board = Board(serial_port=str(tmp_path / "dev" / "ttyPPI"))
     sim = PenguinPiSim(world, board)
-    clock = SimClock(world, [sim]).start()
+    # The port first: pyserial flushes the input when it opens it, so a board that had already
+    # said its first line (the clock's first step) would have it thrown away.
     port = serial.Serial(board.serial_port, 115200, timeout=0.5, exclusive=True)
+    clock = SimClock(world, [sim]).start()
     yield sim, port
     port.close()
     clock.stop()
