@@ -203,11 +203,12 @@ async def test_record_the_driven_robot_and_replay_it_into_fresh_services(make_ro
           f"{math.degrees(max(h for _, h, _ in loc_diff)):.4f} deg; final recorded "
           f"({rec_loc[-1].x:.4f}, {rec_loc[-1].y:.4f}), replayed ({loc[-1].x:.4f}, {loc[-1].y:.4f})")
     assert math.dist((rec_odom[0].x, rec_odom[0].y), (rec_odom[-1].x, rec_odom[-1].y)) > 0.5
-    # Common stamps: about half of ~500 poses on a quiet machine; under load the batches differ
-    # more (62 seen with two test workers): enough to compare the whole drive either way.
+    # Common stamps: about half of the poses on a quiet machine; under load the batches differ
+    # more (62 odometry and 39 localizer poses seen with two test workers): enough to compare the
+    # whole drive either way.
     assert len(odom_diff) > 40
     assert max(p for p, _, _ in odom_diff) < 0.001
-    assert len(loc_diff) > 50
+    assert len(loc_diff) > 20
     assert worst[0] < 0.01
     assert math.dist((rec_loc[-1].x, rec_loc[-1].y), (loc[-1].x, loc[-1].y)) < 0.01  # at rest, every frame in
 
