@@ -133,6 +133,17 @@ class Robot:
                 proc.stop()
 
 
+def stop_up(up: subprocess.Popen) -> int:
+    """Ctrl-C to an `icefloe up` started with ``start_new_session``; its exit status. One that is
+    still there after 60 s is killed with its whole process group, and the test fails."""
+    up.send_signal(SIGINT)
+    try:
+        return up.wait(60)
+    except subprocess.TimeoutExpired:
+        os.killpg(up.pid, SIGKILL)
+        raise
+
+
 def processes_naming(text: str) -> list[int]:
     """PIDs of every process (but this one) whose command line contains ``text``, e.g. a config path."""
     pids = []

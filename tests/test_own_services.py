@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, free_port, processes_naming, robot_config
+from conftest import ROOT, free_port, processes_naming, robot_config, stop_up
 from test_cli import wait_alive
 
 from icefloe import config as config_mod
@@ -112,12 +112,8 @@ def test_up_runs_supervises_and_stops_your_own_programs(tmp_path: Path) -> None:
             wait_alive(cfg, name, timeout=60)
         assert asyncio.run(screen_texts(config, 1))[0].startswith("battery ")
     finally:
-        up.send_signal(signal.SIGINT)
         try:
-            code = up.wait(60)
-        except subprocess.TimeoutExpired:
-            os.killpg(up.pid, signal.SIGKILL)
-            raise
+            code = stop_up(up)
         finally:
             log.close()
     output = (tmp_path / "up.log").read_text()

@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from conftest import ROOT, free_port, processes_naming, robot_config
+from conftest import ROOT, free_port, processes_naming, robot_config, stop_up
 
 from icefloe import config as config_mod
 from icefloe.launcher import available
@@ -46,12 +44,8 @@ def test_the_default_stack_runs_reports_and_stops_cleanly(tmp_path: Path) -> Non
         assert lines, "no log lines on the bus"
         assert all({"stamp", "level", "service", "text"} <= set(e) for e in lines)
     finally:
-        up.send_signal(signal.SIGINT)
         try:
-            code = up.wait(60)
-        except subprocess.TimeoutExpired:
-            os.killpg(up.pid, signal.SIGKILL)
-            raise
+            code = stop_up(up)
         finally:
             log.close()
             echo.close()

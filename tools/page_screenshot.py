@@ -17,7 +17,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from viz_screenshot import free_port, start, stop, wait
+from viz_screenshot import free_port, sim_config, start, stop, wait
 
 from icefloe import config as config_mod
 from icefloe.client import Robot
@@ -56,9 +56,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="icefloe-page-") as tmp:
         folder = Path(os.environ.get("PAGE_SHOT_DIR", tmp))
         port, http = free_port(), free_port()
-        cfg = folder / "sim.toml"
-        cfg.write_text(f'extends = "sim"\nrun_dir = "{folder}/run"\n[webapi]\nhost = "127.0.0.1"\nport = {http}\n'
-                       f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n')
+        cfg = sim_config(folder, port, webapi=f'host = "127.0.0.1"\nport = {http}')
         config = config_mod.load(cfg)
         procs = [start("icefloe.router", cfg, log=folder / "router.log")]
         try:

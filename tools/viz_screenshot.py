@@ -82,11 +82,18 @@ def drive(robot: Robot) -> None:
     robot.stop()
 
 
+def sim_config(folder: Path, port: int, webapi: str = "") -> Path:
+    """``folder``/sim.toml: the simulated robot with its router on ``port`` and its files in ``folder``;
+    ``webapi``: more lines of its [webapi] table (default: a free port)."""
+    cfg = folder / "sim.toml"
+    cfg.write_text(f'extends = "sim"\nrun_dir = "{folder}/run"\n[webapi]\n{webapi or f"port = {free_port()}"}\n'
+                   f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n')
+    return cfg
+
+
 def record(folder: Path, rrd: Path) -> None:
     port = free_port()
-    cfg = folder / "sim.toml"
-    cfg.write_text(f'extends = "sim"\nrun_dir = "{folder}/run"\n[webapi]\nport = {free_port()}\n'
-                   f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n')
+    cfg = sim_config(folder, port)
     config = config_mod.load(cfg)
     procs = [start("icefloe.router", cfg, log=folder / "router.log")]
     try:
