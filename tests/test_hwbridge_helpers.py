@@ -62,16 +62,24 @@ async def driving(node: Node, v: float, w: float = 0.0, rate_hz: float = 20.0):
             await task
 
 
-async def measured_forward_speed(node: Node, seconds: float) -> float:
-    """True forward speed of the simulated robot over ``seconds`` (from sim/control reads), m/s."""
+async def forward_motion(node: Node, seconds: float) -> tuple[float, float, float]:
+    """The simulated robot's true forward travel over ``seconds`` (from sim/control reads):
+    (metres, simulated seconds, wall seconds). The two times differ when the simulation
+    falls behind on a starved machine."""
     a = await sim_state(node)
-    t0 = time.monotonic()
     await asyncio.sleep(seconds)
     b = await sim_state(node)
-    dt = b.sim_time - a.sim_time
-    assert dt > 0.5 * (time.monotonic() - t0), "the simulation clock is not keeping up"
     heading = (a.theta + b.theta) / 2
-    return ((b.x - a.x) * math.cos(heading) + (b.y - a.y) * math.sin(heading)) / dt
+    travel = (b.x - a.x) * math.cos(heading) + (b.y - a.y) * math.sin(heading)
+    # Both stamped by the simulator as it read its state.
+    return travel, b.sim_time - a.sim_time, (b.stamp - a.stamp) * 1e-9
+
+
+async def measured_forward_speed(node: Node, seconds: float) -> float:
+    """True forward speed of the simulated robot over ``seconds`` of simulated time, m/s."""
+    travel, sim_dt, wall_dt = await forward_motion(node, seconds)
+    assert sim_dt > 0.5 * wall_dt, "the simulation clock is not keeping up"
+    return travel / sim_dt
 
 
 async def deadman_delay(wheels, last_command_ns: int) -> float:

@@ -103,6 +103,11 @@ class Board:
         this process is gone (on exit and when the link is lost; best effort, never raises,
         never waits long)."""
 
+    def stop_lost(self) -> None:
+        """The link was lost: stop the wheels like `stop`, but leave what the board counted
+        for the reconnect where it can (the icoBoard v2 keeps running; default: `stop`)."""
+        self.stop()
+
     def close(self) -> None:
         """Release the link (idempotent)."""
 

@@ -171,13 +171,20 @@ class IcoBoardBoard(Board):
             # START checks the board is the one the config describes, RESET zeroes PWM and counters.
             start = self._call(Op.START)
             self.wire.check_start(start)
-            self._call(Op.RESET)
+            # After a lost link, a v2 board that says it kept running (byte 0 of START shows
+            # the state before it) still holds the counts of the motion we did not see: keep
+            # them, or odometry loses that motion. Its watchdog has zeroed the PWM already.
+            resumed = (self.wire.version == 2 and self.exchanges > 0
+                       and bool(start.head & Status.RUNNING))
+            if not resumed:
+                self._call(Op.RESET)
             first = self._call(Op.RECEIVE)
         except BoardError:  # BoardMismatch included: the caller decides whether to retry
             self.close()
             raise
-        for unwrap in self._unwrap:
-            unwrap.rebase()  # counts restart at 0 on the board; ours continue
+        if not resumed:
+            for unwrap in self._unwrap:
+                unwrap.rebase()  # counts restart at 0 on the board; ours continue
         for speed in self._speed:
             speed.reset()
         for pi in self._pi:
@@ -194,11 +201,24 @@ class IcoBoardBoard(Board):
 
     def stop(self) -> None:
         """EXIT: the board sets every PWM duty to 0 and stops."""
+        self._last_word(Op.EXIT)
+
+    def stop_lost(self) -> None:
+        """v2: a zero-duty TRANSMIT rather than EXIT, so the board stops the wheels but keeps
+        running, and the reconnect finds its counts (should this frame not arrive either, the
+        board's watchdog zeroes the duty 50 ms after the last frame that did)."""
+        if self.wire.version == 2:
+            self._last_word(Op.TRANSMIT, [0] * self.wire.actuators)
+        else:
+            self.stop()
+
+    def _last_word(self, op: Op, duties: list[int] | tuple[int, ...] = ()) -> None:
+        """One frame before we let go of the link: best effort, never raises, waits 20 ms at most."""
         if self._transport is None:
             return
         with contextlib.suppress(Exception):
             self._seq = (self._seq + 1) & 0xFF
-            self._transport.exchange(self.wire.request(Op.EXIT, seq=self._seq), 0.02)
+            self._transport.exchange(self.wire.request(op, seq=self._seq, duties=duties), 0.02)
 
     # ------------------------------------------------------------------ the cycle
 

@@ -264,7 +264,7 @@ class Cycle:
             self._next_retry = now_ns + RETRY_NS
             self.say(MSG_WARNING, f"board link lost: {exc}; retrying every second")
             self._link_warned = True
-            board.stop()
+            board.stop_lost()
             board.close()
 
     def _publish(self) -> None:
