@@ -263,7 +263,9 @@ async def _host_view(wheels, start_ns: int, end_ns: int, m_per_tick: float) -> s
         return "; no hw/wheels in the span"
     first, last = span[0], span[-1]
     counted = (last.ticks_left - first.ticks_left) * m_per_tick / ((last.stamp - first.stamp) * 1e-9)
-    return (f"; hwbridge's estimate {statistics.fmean(w.speed_left for w in span):.3f} m/s, "
+    return (f"; hwbridge's target {statistics.fmean(w.target_left for w in span):.3f} m/s "
+            f"(min {min(w.target_left for w in span):.3f}), "
+            f"its estimate {statistics.fmean(w.speed_left for w in span):.3f} m/s, "
             f"its counts over its stamps {counted:.3f} m/s ({len(span)} samples)")
 
 
