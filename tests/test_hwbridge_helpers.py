@@ -43,11 +43,13 @@ async def start_stack(robot: Robot, node: Node):
 async def driving(node: Node, v: float, w: float = 0.0, rate_hz: float = 20.0):
     """Publish ``cmd/twist`` at ``rate_hz`` inside the block; yields a dict with the last send time."""
     pub = node.publisher(keys.TWIST)
-    sent = {"last": 0.0, "last_wall_ns": 0, "count": 0}
+    sent = {"last": 0.0, "last_wall_ns": 0, "count": 0, "max_gap": 0.0}
 
     async def loop() -> None:
         while True:
             pub.put(m.Twist(v=v, w=w))
+            if sent["count"]:
+                sent["max_gap"] = max(sent["max_gap"], time.monotonic() - sent["last"])
             sent["last"] = time.monotonic()
             sent["last_wall_ns"] = time.time_ns()
             sent["count"] += 1
