@@ -148,7 +148,10 @@ async def test_stop_latches_and_motion_and_halt(make_robot) -> None:
         # A motion cut short by cmd/stop answers completed=False; the stop latches.
         task = asyncio.ensure_future(node.query(keys.MOTION, m.Motion(left=0.1, right=0.1,
                                                                       duration=5.0), timeout=8.0))
-        await asyncio.sleep(0.5)
+        deadline = time.monotonic() + 10
+        while (await sim_state(node)).x < start.x + 0.03:     # under way (however slow the machine)
+            assert time.monotonic() < deadline and not task.done(), "the 5 s motion did not move the robot"
+            await asyncio.sleep(0.02)
         node.publisher(keys.STOP).put(m.Stop())
         done = await task
         assert not done.completed and "cmd/stop" in done.reason
