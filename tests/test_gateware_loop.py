@@ -18,7 +18,7 @@ import time
 
 import pytest
 from conftest import wait_for
-from test_hwbridge_helpers import sim_state, start_stack
+from test_hwbridge_helpers import fresh, sim_state, start_stack
 
 from icefloe.gateware.cxxsim import CompiledBoard
 from icefloe.schemas import keys
@@ -39,14 +39,6 @@ def compiled() -> None:
 
     sim = config_mod.load(None).sim
     CompiledBoard(Peripherals(), clk_hz=sim.gateware_clk_hz).close()
-
-
-async def _fresh(poses, after_ns: int) -> m.Pose:
-    """The first ``odom/pose`` stamped after ``after_ns``."""
-    async for pose in poses:
-        if pose.stamp > after_ns:
-            return pose
-    raise AssertionError("odom/pose ended")
 
 
 async def _drive(node, poses, v: float, arrived) -> None:
@@ -76,7 +68,7 @@ async def test_odometry_follows_the_truth_through_the_gateware(make_robot) -> No
             await _drive(node, poses, v, arrived)      # 1 m forward, then back
             await asyncio.sleep(0.5)                   # stopped
             truth = await sim_state(node)
-            pose = await _fresh(poses, truth.stamp)
+            pose = await fresh(poses, truth.stamp)
             assert abs(truth.x - x) > 0.95, truth      # it went 1 m
             path += abs(truth.x - x)
             x = truth.x

@@ -84,6 +84,14 @@ async def measured_forward_speed(node: Node, seconds: float) -> float:
     return travel / sim_dt
 
 
+async def fresh(sub, after_ns: int):
+    """The first message of ``sub`` stamped after ``after_ns`` (wall-clock ns)."""
+    async for msg in sub:
+        if msg.stamp > after_ns:
+            return msg
+    raise AssertionError(f"{sub.key_expr} ended")
+
+
 async def deadman_delay(wheels, last_command_ns: int) -> float:
     """Seconds from the last command to the first ``hw/wheels`` sample with zero targets.
 

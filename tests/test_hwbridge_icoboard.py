@@ -14,6 +14,7 @@ from test_hwbridge_helpers import (
     deadman_delay,
     driving,
     forward_motion,
+    fresh,
     sim_state,
     start_stack,
 )
@@ -237,7 +238,7 @@ async def test_a_lost_link_loses_no_motion(make_robot) -> None:
         _sim, hw = await start_stack(robot, node)
         wheels = node.subscribe(keys.WHEELS)
         rest = await sim_state(node)
-        offset = rest.ticks_left - (await _fresh_wheels(wheels, rest.stamp)).ticks_left
+        offset = rest.ticks_left - (await fresh(wheels, rest.stamp)).ticks_left
         async with driving(node, v=0.2):
             await driven(node)
             await asyncio.sleep(0.3)
@@ -251,7 +252,7 @@ async def test_a_lost_link_loses_no_motion(make_robot) -> None:
                 break
             assert time.monotonic() < deadline, state
             await asyncio.sleep(0.1)
-        seen = await _fresh_wheels(wheels, state.stamp)
+        seen = await fresh(wheels, state.stamp)
         assert state.ticks_left - rest.ticks_left > 100, state     # it went somewhere (~5 cm)
         assert abs(seen.ticks_left + offset - state.ticks_left) <= 1, (seen, state, hw.output)
         assert abs(seen.ticks_right + offset - state.ticks_right) <= 1, (seen, state)
@@ -272,10 +273,3 @@ async def _host_view(wheels, start_ns: int, end_ns: int, m_per_tick: float) -> s
             f"its estimate {statistics.fmean(w.speed_left for w in span):.3f} m/s, "
             f"its counts over its stamps {counted:.3f} m/s ({len(span)} samples)")
 
-
-async def _fresh_wheels(wheels, after_ns: int) -> m.Wheels:
-    """The first ``hw/wheels`` stamped after ``after_ns``."""
-    async for sample in wheels:
-        if sample.stamp > after_ns:
-            return sample
-    raise AssertionError("hw/wheels ended")

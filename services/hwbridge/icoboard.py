@@ -173,7 +173,8 @@ class IcoBoardBoard(Board):
             self.wire.check_start(start)
             # After a lost link, a v2 board that says it kept running (byte 0 of START shows
             # the state before it) still holds the counts of the motion we did not see: keep
-            # them, or odometry loses that motion. Its watchdog has zeroed the PWM already.
+            # them, or odometry loses that motion. Its PWM is at zero already (`stop_lost`'s
+            # frame, or else its watchdog).
             resumed = (self.wire.version == 2 and self.exchanges > 0
                        and bool(start.head & Status.RUNNING))
             if not resumed:
