@@ -412,7 +412,6 @@ class AsyncRobot:
         self._tasks: list[asyncio.Task[None]] = []
         self._hold: asyncio.Task[None] | None = None
         self._moved = False
-        self._stop_sub: Any = None
         self.leds: Leds
         self.clamp = clamp
         self.buttons = Buttons()
@@ -465,12 +464,11 @@ class AsyncRobot:
         # Our own stops come back to us too; REMOTE ignores them.
         loop = asyncio.get_running_loop()
 
-        def on_stop(_sample: zenoh.Sample) -> None:  # Zenoh thread: hand over to the loop
+        def on_stop(_sample: zenoh.Sample) -> None:  # the node's reader thread: hand over to the loop
             with contextlib.suppress(RuntimeError):  # the loop is closing
                 loop.call_soon_threadsafe(self._end_hold, "a cmd/stop from another program")
 
-        self._stop_sub = self.node.session.declare_subscriber(
-            self.node.key(keys.STOP), on_stop, allowed_origin=zenoh.Locality.REMOTE)
+        self.node.on_samples(self.node.key(keys.STOP), on_stop, allowed_origin=zenoh.Locality.REMOTE)
         return self
 
     async def close(self) -> None:
@@ -483,9 +481,6 @@ class AsyncRobot:
         for task in self._tasks:
             task.cancel()
         self._end_hold()
-        if self._stop_sub is not None:
-            self._stop_sub.undeclare()
-            self._stop_sub = None
         self.node.close()
 
     async def __aenter__(self) -> AsyncRobot:

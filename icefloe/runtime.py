@@ -17,9 +17,9 @@ What it gives you:
   the robot's router, no multicast), a liveliness token ``alive/<service>``, a
   logger that writes to stderr and to the bus key ``log``. Closing the node
   closes the session, so the process really ends.
-* Typed subscriptions as async iterators. zenoh-python calls us back on its own
-  threads; the callback only stores the raw sample and wakes the event loop
-  (``call_soon_threadsafe``). Decoding happens in the loop. Each subscription
+* Typed subscriptions as async iterators. Zenoh hands each sample to a thread of
+  ours (`deliver_on_thread`), which only stores the raw sample and wakes the event
+  loop (``call_soon_threadsafe``). Decoding happens in the loop. Each subscription
   has a queue policy: *latest* (keep only the newest sample: sensor streams) or
   *fifo* (keep up to ``maxsize`` in order, dropping the oldest: commands). Bad
   payloads are dropped with a log line naming the key and the field.
@@ -107,6 +107,43 @@ def zenoh_config(
     return zc
 
 
+READER_JOIN_TIMEOUT = 2.0
+"""How long closing a subscription or node waits for its reader thread to end, s."""
+
+
+def deliver_on_thread(handler: Any, deliver: Callable[[Any], object], name: str,
+                      log: logging.Logger) -> threading.Thread:
+    """Call ``deliver`` with each sample (or query) that Zenoh puts in ``handler`` (the channel of
+    a subscriber or queryable declared with ``zenoh.handlers.DefaultHandler()``), one by one, on
+    a thread of our own; the thread ends when the subscriber is undeclared or its session closed.
+    Join it after that (`Subscription.close`, `Node.close`).
+
+    Why not hand zenoh-python the callback? It would run it on a thread it starts itself, the
+    same way, but one we cannot join: declared from a daemon thread (the blocking `Robot`'s
+    event loop) that thread is a daemon too, and when the interpreter exits while it is still
+    inside Zenoh, the process aborts ("FATAL: exception not rethrown") instead of exiting."""
+
+    def read() -> None:
+        for item in handler:
+            try:
+                deliver(item)
+            except Exception:  # one bad sample must not end the subscription
+                log.exception("%s: delivering a sample failed", name)
+
+    thread = threading.Thread(target=read, name=name, daemon=True)
+    thread.start()
+    return thread
+
+
+def join_reader(thread: threading.Thread, log: logging.Logger) -> None:
+    """Wait for a `deliver_on_thread` thread whose subscriber or session was just closed."""
+    if thread is not threading.current_thread():
+        thread.join(READER_JOIN_TIMEOUT)
+        if thread.is_alive():
+            log.warning("%s still running %.0f s after its subscription closed", thread.name,
+                        READER_JOIN_TIMEOUT)
+
+
 @dataclass(frozen=True)
 class RawSample:
     """A sample as it came off the bus (for tools that handle any key)."""
@@ -147,10 +184,12 @@ class Subscription(Generic[T]):
         self._wake_pending = False
         self._closed = False
         self._warn, self._kind = node.limited, node.short(key_expr)
-        self._sub = node.session.declare_subscriber(key_expr, self._on_sample)
+        self._sub = node.session.declare_subscriber(key_expr, zenoh.handlers.DefaultHandler())
+        self._reader = deliver_on_thread(self._sub.handler, self._on_sample, f"icefloe {key_expr}", node.log)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Runs on a Zenoh thread: copy the bytes, queue them, wake the loop once. Never block.
+        # Runs on our reader thread: copy the bytes, queue them, wake the loop once. Never block:
+        # while it waits, Zenoh queues the samples behind (and past 256, holds up the session).
         raw = RawSample(
             str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.monotonic()
         )
@@ -197,6 +236,7 @@ class Subscription(Generic[T]):
         if not self._closed:
             self._closed = True
             self._sub.undeclare()
+            join_reader(self._reader, self._node.log)
             self._wake.set()
 
 
@@ -314,6 +354,8 @@ class Node:
         """For lines about bad input: a few per second per kind (see `icefloe.logs`)."""
         self.session: zenoh.Session
         self._closables: list[Any] = []
+        self._readers: list[threading.Thread] = []
+        """`deliver_on_thread` threads of queryables and `on_samples`, joined when the session closes."""
         self._log_handler: _BusLogHandler | None = None
         self._tasks: set[asyncio.Task[Any]] = set()
         self._seq = 0
@@ -382,6 +424,9 @@ class Node:
         self._closables.clear()
         if hasattr(self, "session") and not self.session.is_closed():
             self.session.close()
+        for reader in self._readers:
+            join_reader(reader, self.log)
+        self._readers.clear()
 
     # ------------------------------------------------------------------ subscribing
 
@@ -446,7 +491,7 @@ class Node:
                 query.drop()
                 slots.release()
 
-        def on_query(query: zenoh.Query) -> None:  # Zenoh thread
+        def on_query(query: zenoh.Query) -> None:  # our reader thread: never block
             if not slots.acquire(blocking=False):
                 self.limited.warning(f"{topic.name} busy", "refused a query on %s: %d already being answered",
                                      key_expr, MAX_QUERIES)
@@ -456,7 +501,20 @@ class Node:
             with contextlib.suppress(RuntimeError):
                 loop.call_soon_threadsafe(self._spawn, answer(query))
 
-        self._closables.append(self.session.declare_queryable(key_expr, on_query))
+        queryable = self.session.declare_queryable(key_expr, zenoh.handlers.DefaultHandler())
+        self._closables.append(queryable)
+        self._readers.append(deliver_on_thread(queryable.handler, on_query, f"icefloe {key_expr}", self.log))
+
+    def on_samples(self, key_expr: str, callback: Callable[[zenoh.Sample], object],
+                   **options: Any) -> Any:
+        """Call ``callback`` with each raw sample on ``key_expr``, on a reader thread of this node
+        (`deliver_on_thread`; never block in it); ``options`` go to ``declare_subscriber``
+        (``allowed_origin=zenoh.Locality.REMOTE``). Returns the subscriber; undeclare it, or let
+        `close` do it."""
+        subscriber = self.session.declare_subscriber(key_expr, zenoh.handlers.DefaultHandler(), **options)
+        self._closables.append(subscriber)
+        self._readers.append(deliver_on_thread(subscriber.handler, callback, f"icefloe {key_expr}", self.log))
+        return subscriber
 
     def _spawn(self, coro: Awaitable[Any]) -> None:
         task = asyncio.ensure_future(coro)

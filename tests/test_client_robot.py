@@ -214,3 +214,44 @@ async def test_a_bad_argument_to_the_blocking_robot_sends_nothing_not_even_a_sto
             assert b.raw == []
         finally:
             await asyncio.to_thread(r.close)
+
+
+EXIT_SCRIPT = """
+import sys, time
+from icefloe import Robot
+with Robot(config=sys.argv[1]) as robot:
+    time.sleep(0.3)  # the stream is flowing into the robot's subscriptions
+print("closed")
+"""
+
+
+async def test_a_program_exits_cleanly_while_the_bus_streams_to_it(robot, tmp_path):
+    """The blocking `Robot` runs its loop on a daemon thread; the threads that hand it samples
+    must be done before the interpreter exits, or the process aborts ("FATAL: exception not
+    rethrown", exit -6) on its last line: seen in CI with docs/first-hour.md's hello.py."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "exit.py"
+    script.write_text(EXIT_SCRIPT)
+    async with robot.node("streamer") as streamer:
+        pose, wheels = streamer.publisher(keys.ODOM_POSE), streamer.publisher(keys.WHEELS)
+        running = True
+
+        async def stream() -> None:
+            while running:  # far faster than any real stream: every reader thread is busy at exit
+                for _ in range(50):
+                    pose.put(m.Pose(stamp=1, x=0.0, y=0.0, theta=0.0))
+                    wheels.put(m.Wheels(stamp=1, ticks_left=1, ticks_right=1, speed_left=0.0, speed_right=0.0))
+                await asyncio.sleep(0)
+
+        flood = asyncio.create_task(stream())
+        try:
+            for _ in range(8):
+                done = await asyncio.to_thread(subprocess.run, [sys.executable, str(script), str(robot.config_path)],
+                                               capture_output=True, text=True, timeout=60)
+                assert (done.returncode, done.stdout.strip()) == (0, "closed"), done.stderr[-3000:]
+                assert "FATAL" not in done.stderr, done.stderr[-3000:]
+        finally:
+            running = False
+            await flood
