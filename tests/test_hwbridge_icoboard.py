@@ -64,7 +64,8 @@ async def test_twist_drives_at_the_commanded_speed_then_deadman_stops(make_robot
         starved = missed >= 0.05 or keeping_up < 0.98
         tolerance = 0.2 if starved else 0.05
         report = (f"{speed:.3f} m/s; {missed:.0%} of the exchanges timed out; simulated/wall time {keeping_up:.3f}; "
-                  f"longest gap between twists sent {sent['max_gap']:.3f} s")
+                  f"longest gap between twists sent {sent['max_gap']:.3f} s; "
+                  f"stalled shared-memory reads {after.stalled_reads - before.stalled_reads}")
         if starved:
             print(f"board link starved: {report}")
         if abs(speed - 0.15) > tolerance * 0.15:

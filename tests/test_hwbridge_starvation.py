@@ -16,6 +16,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -28,7 +29,16 @@ from icefloe import config as config_mod
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.hwbridge.shm import OFF_CMD_SEQ, OFF_STATE_SEQ, READ_TRIES, STATE_FIELDS, Shared, block_name
+from icefloe.services.hwbridge.shm import (
+    CMD_SLOT,
+    OFF_CMD,
+    OFF_CMD_SEQ,
+    OFF_STATE_SEQ,
+    READ_TRIES,
+    STATE_FIELDS,
+    Shared,
+    block_name,
+)
 from icefloe.wire import penguinpi as ppi
 from icefloe.wire.penguinpi import Address, MultiOp
 
@@ -121,25 +131,80 @@ async def until_at_rest(node: Node, timeout: float) -> m.SimState:
 # ---------------------------------------------------------------------------- the seqlock alone
 
 
-def test_a_read_that_finds_a_write_in_progress_is_put_off_and_counted() -> None:
+def test_a_state_read_that_finds_a_write_in_progress_is_put_off_and_counted() -> None:
     shared = Shared.create()
     try:
-        shared.write_commands(0.1, 0.2, 123, False, 0)
         shared.write_state([0] * len(STATE_FIELDS))
-        for seq_off, read in ((OFF_CMD_SEQ, shared.read_commands), (OFF_STATE_SEQ, shared.read_state)):
-            seq = shared._word(seq_off)
-            shared._set_word(seq_off, seq + 1)           # a writer stopped half-way
-            before = shared.stalled_reads
-            t0 = time.perf_counter()
-            assert read() is None
-            spent = time.perf_counter() - t0
-            assert shared.stalled_reads == before + 1
-            assert spent < 0.05, f"{READ_TRIES} tries took {spent * 1e3:.1f} ms"  # gives the CPU back soon
-            shared._set_word(seq_off, seq + 2)           # the write finished
-            assert read() is not None
-        assert shared.read_commands() == (0.1, 0.2, 123, 0, 0, 0)
-        assert shared.stalled_reads == 2
+        seq = shared._word(OFF_STATE_SEQ)
+        shared._set_word(OFF_STATE_SEQ, seq + 1)         # the cycle stopped half-way
+        t0 = time.perf_counter()
+        assert shared.read_state() is None
+        spent = time.perf_counter() - t0
+        assert shared.stalled_reads == 1
+        assert spent < 0.05, f"{READ_TRIES} tries took {spent * 1e3:.1f} ms"  # gives the CPU back soon
+        shared._set_word(OFF_STATE_SEQ, seq + 2)         # the write finished
+        assert shared.read_state() is not None
     finally:
+        shared.close()
+
+
+def test_a_commands_write_in_progress_leaves_the_cycle_the_last_complete_one() -> None:
+    """The bus process stopped half-way through the write after a stop (its slot's number odd,
+    half its fields new): the cycle reads the stop, at once, every time; nothing is put off."""
+    shared = Shared.create()
+    try:
+        shared.write_commands(0.3, 0.3, 100, False, 0, 0)
+        shared.write_commands(0.0, 0.0, 100, True, 0, 1)      # a stop, written whole
+        version = shared._word(OFF_CMD_SEQ)
+        writing = OFF_CMD + ((version + 1) % 2) * CMD_SLOT    # the next write's slot
+        shared._set_word(writing, shared._word(writing) + 1)  # ... begun, and stopped half-way
+        shared._set_word(writing + 8, 0x7FF0_0000_0000_0000)  # (0.3 m/s's slot: now +inf)
+        for _ in range(1000):
+            assert shared.read_commands() == (0.0, 0.0, 100, 1, 0, 1)
+        assert shared.stalled_reads == 0
+        # Only a slot being rewritten under the reader on every try puts the read off.
+        published = OFF_CMD + (version % 2) * CMD_SLOT
+        shared._set_word(published, shared._word(published) + 1)
+        assert shared.read_commands() is None and shared.stalled_reads == 1
+    finally:
+        shared.close()
+
+
+def test_commands_read_while_written_from_threads_are_whole_and_never_put_off() -> None:
+    """Writers on two threads (as Zenoh's and the event loop's are), Python switching between
+    threads every microsecond, so mid-write: every read is one complete write."""
+    shared = Shared.create()
+    lock = threading.Lock()
+    done = threading.Event()
+    interval = sys.getswitchinterval()
+
+    def write(sign: float) -> None:
+        i = 0
+        while not done.is_set():
+            i += 1
+            with lock:  # one writer at a time, as `Bridge.sync`
+                shared.write_commands(sign * i, -sign * i, i, i % 2 == 0, i, i)
+
+    try:
+        shared.write_commands(0.0, 0.0, 0, False, 0, 0)
+        sys.setswitchinterval(1e-6)
+        writers = [threading.Thread(target=write, args=(sign,)) for sign in (1.0, -1.0)]
+        for w in writers:
+            w.start()
+        reads = 0
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            got = shared.read_commands()
+            assert got is not None
+            left, right, fresh, stop, epoch, stop_seq = got
+            assert left == -right and abs(left) == fresh == epoch == stop_seq and stop == (fresh % 2 == 0), got
+            reads += 1
+        assert shared.stalled_reads == 0 and reads > 1000
+    finally:
+        done.set()
+        sys.setswitchinterval(interval)
+        for w in writers:
+            w.join()
         shared.close()
 
 

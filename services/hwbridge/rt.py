@@ -168,7 +168,7 @@ class Cycle:
     def step(self, now_ns: int) -> None:
         """Everything a period does after waking up at ``now_ns`` (CLOCK_MONOTONIC)."""
         commands = self.shared.read_commands()
-        if commands is None:  # the bus process was descheduled mid-write: stop for this period
+        if commands is None:  # no complete write to be had on any try (`read_commands`): stop for this period
             left = right = 0.0
             fresh_ns, stop, epoch, stop_seq = 0, 1, self._epoch, self.confirmed
         else:
@@ -214,7 +214,7 @@ class Cycle:
         if not self.link_up or deadline_ns - now_ns < self.period_ns // KICK_GUARD_FRACTION:
             return  # no board to tell, or the period, due in a moment, tells it
         commands = self.shared.read_commands()
-        # mid-write: stop, as `step` does (and confirm no new number)
+        # no complete write to be had: stop, as `step` does (and confirm no new number)
         stop, stop_seq = (1, self.confirmed) if commands is None else (commands[3], commands[5])
         if not stop or self.stop_reason != STOP_NONE:
             return  # no stop latched, or the wheels are stopped already

@@ -7,7 +7,7 @@ Each field has exactly one writer:
 region     writer                  holds
 =========  ======================  =========================================
 commands   bus process             wheel targets, command time (deadman),
-                                   stop latch, statistics epoch
+           (two slots)             stop latch, statistics epoch
 io ring    bus process (head)      LED / LED array / screen / text commands
            RT process (tail)
 state      RT process              encoder sample, speeds, targets, loop and
@@ -25,7 +25,17 @@ after `READ_TRIES` tries and counts it (`Shared.stalled_reads`): a writer that
 was descheduled in the middle of a write (a starved machine: the cycle without
 SCHED_FIFO) does not finish however long the reader spins, so the reader asks
 again later (the cycle at its next period, the bus process after a back-off)
-instead of taking the CPU the writer needs. The rings are
+instead of taking the CPU the writer needs.
+
+The commands are written more carefully, because their reader is the cycle and a put-off read
+would have to stop the wheels for that period: they are **double-buffered**. The bus process
+writes the slot the cycle is not reading (with that slot's own seqlock), then publishes it with
+one store; the cycle reads the published slot. The bus process writes from several Python threads
+(Zenoh's, the event loop's), and Python may switch threads in the middle of a write for
+milliseconds; with one slot, each of those periods stopped the wheels, reset the ramp and the
+speed loop, and a robot on a busy laptop drove 20 % short. With two, a write in progress is
+invisible and the cycle goes on with the last complete one: a stop counts from the moment it is
+written whole, and nothing written before it can come back after it. The rings are
 single-producer single-consumer: the producer fills a slot, then advances its
 head; the consumer reads, then advances its tail.
 
@@ -87,9 +97,13 @@ READ_TRIES = 100
 microseconds, so a writer that is running is done within a few tries (100 take 0.3-0.7 ms
 on the busy build machine); one that is not running does not finish sooner for being waited on."""
 
+CMD_SLOT = 8 + COMMANDS.size
+"""A commands slot: its seqlock word, then `COMMANDS`."""
+
 OFF_CMD_SEQ = 0
+"""The commands' published version: slot ``version % 2`` holds the latest complete write."""
 OFF_CMD = 8
-OFF_IO_HEAD = OFF_CMD + COMMANDS.size
+OFF_IO_HEAD = OFF_CMD + 2 * CMD_SLOT
 OFF_IO_TAIL = OFF_IO_HEAD + 8
 OFF_IO = OFF_IO_TAIL + 8
 OFF_STATE_SEQ = OFF_IO + IO_SLOTS * IO_SLOT.size
@@ -192,14 +206,33 @@ class Shared:
 
     # ------------------------------------------------------------------ commands (bus -> RT)
 
+    @staticmethod
+    def _cmd_slot(version: int) -> int:
+        return OFF_CMD + (version % 2) * CMD_SLOT
+
     def write_commands(self, left: float, right: float, fresh_ns: int, stop: bool,
                        epoch: int, stop_seq: int = 0) -> None:
-        self._write(OFF_CMD_SEQ, COMMANDS, OFF_CMD, left, right, fresh_ns, int(stop), epoch, stop_seq)
+        """Write the slot the cycle is not reading, then publish it (one writer at a time)."""
+        version = self._word(OFF_CMD_SEQ) + 1
+        slot = self._cmd_slot(version)
+        self._write(slot, COMMANDS, slot + 8, left, right, fresh_ns, int(stop), epoch, stop_seq)
+        self._set_word(OFF_CMD_SEQ, version)
 
     def read_commands(self) -> tuple[float, float, int, int, int, int] | None:
-        """(target_left, target_right, fresh_ns, stop, stats_epoch, stop_seq); None if the bus
-        process is in the middle of a write (see `_read`)."""
-        return self._read(OFF_CMD_SEQ, COMMANDS, OFF_CMD)  # type: ignore[return-value]
+        """(target_left, target_right, fresh_ns, stop, stats_epoch, stop_seq) of the latest
+        complete write. A write in progress never holds this up: it goes to the other slot. Only
+        a writer that published and began the next write into this very slot during the copy
+        makes it look again; None (counted) if that happened on every try."""
+        for _ in range(READ_TRIES):
+            slot = self._cmd_slot(self._word(OFF_CMD_SEQ))
+            before = self._word(slot)
+            if before & 1:
+                continue
+            values = COMMANDS.unpack_from(self.buf, slot + 8)
+            if self._word(slot) == before:
+                return values  # type: ignore[return-value]
+        self.stalled_reads += 1
+        return None
 
     # ------------------------------------------------------------------ io ring (bus -> RT)
 
