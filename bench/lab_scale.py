@@ -165,6 +165,13 @@ class Laptops:
                 return dict(seen)
             await asyncio.sleep(0.5)
 
+    async def wait_truths(self, names: list[str], since_ns: int, timeout: float) -> None:
+        """Wait until each robot's ``sim/truth`` stamped at or after ``since_ns`` (wall clock) is here."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not all(
+                self.truths[n] and self.truths[n][-1][1].stamp >= since_ns for n in names):
+            await asyncio.sleep(0.1)
+
     async def wait_poses(self, names: list[str], timeout: float) -> list[str]:
         """Wait for a first pose from each robot (odometry publishes once hw/wheels flows); the silent ones."""
         deadline = time.monotonic() + timeout
@@ -308,7 +315,10 @@ async def measure(lab: Lab, seconds: float, *, start_timeout: float = 60.0, spee
             pub.undeclare()
         # The deadman stops the driven robots; the last twists reach the guest (or do not).
         await asyncio.sleep(max(lab.config(n).hwbridge.deadman_s for n in lab.names) + SETTLE_S)
-        t2 = time.monotonic()
+        t2, at_rest_ns = time.monotonic(), time.time_ns()
+        # The truth at rest is one the simulator published after this moment: on a starved laptop
+        # the samples received by now may be seconds old (the robot still under way in them).
+        await laptops.wait_truths(lab.names, at_rest_ns, start_timeout)
         for clock in clocks.values():
             await clock.stop()
 
@@ -322,7 +332,7 @@ async def measure(lab: Lab, seconds: float, *, start_timeout: float = 60.0, spee
         config = lab.config(n)
         in_window = [pose for t, pose in laptops.poses[n] if t0 <= t <= t1]
         truth0 = _last(laptops.truths[n], t0)
-        truth1 = _last(laptops.truths[n], t2)
+        truth1 = next((truth for _, truth in laptops.truths[n] if truth.stamp >= at_rest_ns), None)
         stats = [s for t, s in laptops.loops[n] if t0 <= t <= t2]
         cycle_hz, overruns = _cycle_rate(stats)
         heard = laptops.twists_heard[n]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -30,6 +31,13 @@ from icefloe.runtime import Node
 
 ROOT = Path(__file__).resolve().parent.parent
 SIM_CONFIG = ROOT / "deploy" / "robots" / "sim.toml"
+
+# A suite started in the background of a script (`./tests/run.sh &`, `nohup ... &`) inherits
+# SIGINT *ignored*, and so would every program it starts: a Ctrl-C sent to `icefloe echo` or to a
+# student's script would do nothing, and the tests of Ctrl-C would fail for the harness's sake.
+# A Python handler (unlike SIG_IGN) is reset to the default on exec: the programs get a real Ctrl-C.
+if signal.getsignal(SIGINT) is signal.SIG_IGN:
+    signal.signal(SIGINT, signal.default_int_handler)
 
 
 def free_port() -> int:
