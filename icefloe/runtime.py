@@ -112,7 +112,7 @@ READER_JOIN_TIMEOUT = 2.0
 
 
 def deliver_on_thread(handler: Any, deliver: Callable[[Any], object], name: str,
-                      log: logging.Logger) -> threading.Thread:
+                      warn: LimitedLog) -> threading.Thread:
     """Call ``deliver`` with each sample (or query) that Zenoh puts in ``handler`` (the channel of
     a subscriber or queryable declared with ``zenoh.handlers.DefaultHandler()``), one by one, on
     a thread of our own; the thread ends when the subscriber is undeclared or its session closed.
@@ -127,8 +127,8 @@ def deliver_on_thread(handler: Any, deliver: Callable[[Any], object], name: str,
         for item in handler:
             try:
                 deliver(item)
-            except Exception:  # one bad sample must not end the subscription
-                log.exception("%s: delivering a sample failed", name)
+            except Exception as exc:  # one bad sample must not end the subscription (nor flood the log)
+                warn.warning(f"deliver {name}", "%s: delivering a sample failed", name, exc_info=exc)
 
     thread = threading.Thread(target=read, name=name, daemon=True)
     thread.start()
@@ -185,7 +185,7 @@ class Subscription(Generic[T]):
         self._closed = False
         self._warn, self._kind = node.limited, node.short(key_expr)
         self._sub = node.session.declare_subscriber(key_expr, zenoh.handlers.DefaultHandler())
-        self._reader = deliver_on_thread(self._sub.handler, self._on_sample, f"icefloe {key_expr}", node.log)
+        self._reader = deliver_on_thread(self._sub.handler, self._on_sample, f"icefloe {key_expr}", node.limited)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Runs on our reader thread: copy the bytes, queue them, wake the loop once. Never block:
@@ -503,7 +503,7 @@ class Node:
 
         queryable = self.session.declare_queryable(key_expr, zenoh.handlers.DefaultHandler())
         self._closables.append(queryable)
-        self._readers.append(deliver_on_thread(queryable.handler, on_query, f"icefloe {key_expr}", self.log))
+        self._readers.append(deliver_on_thread(queryable.handler, on_query, f"icefloe {key_expr}", self.limited))
 
     def on_samples(self, key_expr: str, callback: Callable[[zenoh.Sample], object],
                    **options: Any) -> Any:
@@ -513,7 +513,7 @@ class Node:
         `close` do it."""
         subscriber = self.session.declare_subscriber(key_expr, zenoh.handlers.DefaultHandler(), **options)
         self._closables.append(subscriber)
-        self._readers.append(deliver_on_thread(subscriber.handler, callback, f"icefloe {key_expr}", self.log))
+        self._readers.append(deliver_on_thread(subscriber.handler, callback, f"icefloe {key_expr}", self.limited))
         return subscriber
 
     def _spawn(self, coro: Awaitable[Any]) -> None:

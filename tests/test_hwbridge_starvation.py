@@ -177,6 +177,7 @@ def test_commands_read_while_written_from_threads_are_whole_and_never_put_off() 
     lock = threading.Lock()
     done = threading.Event()
     interval = sys.getswitchinterval()
+    writers: list[threading.Thread] = []
 
     def write(sign: float) -> None:
         i = 0
@@ -188,7 +189,7 @@ def test_commands_read_while_written_from_threads_are_whole_and_never_put_off() 
     try:
         shared.write_commands(0.0, 0.0, 0, False, 0, 0)
         sys.setswitchinterval(1e-6)
-        writers = [threading.Thread(target=write, args=(sign,)) for sign in (1.0, -1.0)]
+        writers += [threading.Thread(target=write, args=(sign,)) for sign in (1.0, -1.0)]
         for w in writers:
             w.start()
         reads = 0

@@ -235,3 +235,25 @@ async def test_batches_deliver_everything_in_order_once_per_period(robot: Robot)
         while not got:
             got = [w.stamp for w in await asyncio.wait_for(anext(batches), 1.0)]
         assert got == [300] and batches.rejected == 1  # the bad one was dropped, the reader carried on
+
+
+def test_a_reader_thread_survives_a_failing_delivery_with_a_few_lines(caplog: pytest.LogCaptureFixture) -> None:
+    """A delivery that raises (a bug) on every sample: the reader goes on to the next one, and a
+    thousand failures are a few log lines, not a thousand tracebacks."""
+    from icefloe.logs import LimitedLog
+    from icefloe.runtime import deliver_on_thread
+
+    delivered: list[int] = []
+
+    def deliver(sample: int) -> None:
+        delivered.append(sample)
+        raise ValueError(f"bug on sample {sample}")
+
+    log = logging.getLogger("icefloe.test.reader")
+    with caplog.at_level(logging.WARNING, logger=log.name):
+        # Zenoh's channel is an iterator that ends when its subscriber is undeclared: a list does the same.
+        reader = deliver_on_thread(iter(range(1000)), deliver, "icefloe test/key", LimitedLog(log))
+        reader.join(30)  # a loaded machine may take its time; it ends with the channel
+    assert delivered == list(range(1000))
+    lines = [r for r in caplog.records if r.name == log.name]
+    assert 1 <= len(lines) <= 10 and "delivering a sample failed" in lines[0].getMessage()
