@@ -231,6 +231,7 @@ def test_icoboard_stop_zero_duty_at_once_confirmed_by_the_next_exchange(protocol
     transport = ModelTransport(model)
     board = IcoBoardBoard(config, lambda kind, text: None)
     board._connect = lambda: transport  # type: ignore[method-assign]
+    board.clock = lambda: round(transport.now * 1e9)  # replies arrive in simulated time
     board.open(0)
     for ms in range(1, 1001):
         transport.now = ms * 1e-3

@@ -12,6 +12,7 @@ fills in the readings below; the cycle copies them into shared memory.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 from icefloe.config import RobotConfig
@@ -32,6 +33,8 @@ class Board:
     def __init__(self, config: RobotConfig, say: Say) -> None:
         self.config = config
         self.say = say
+        self.clock: Callable[[], int] = time.monotonic_ns
+        """CLOCK_MONOTONIC now, ns: when a reply arrived (tests give the simulated time)."""
         # encoder sample
         self.sample_ns = 0
         """CLOCK_MONOTONIC time of the latest encoder sample, ns (0 = none yet)."""

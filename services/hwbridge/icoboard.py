@@ -248,13 +248,13 @@ class IcoBoardBoard(Board):
         # Wait for the reply for at most half a period, so the cycle keeps its deadline.
         wait = 0.5 * self.period_s
         if until_ns:
-            wait = min(wait, max(0.0, (until_ns - time.monotonic_ns()) * 1e-9))
+            wait = min(wait, max(0.0, (until_ns - self.clock()) * 1e-9))
         raw = transport.exchange(frame, wait)
         if raw is None:
             if not until_ns:  # a reply cut short on purpose arrives late, and is drained then
                 self.timeouts += 1
         else:
-            self._reply(raw, previous_seq, time.monotonic_ns(), previous_zero and stopped)
+            self._reply(raw, previous_seq, self.clock(), previous_zero and stopped)
         if now_ns - self._last_ok_ns > GIVE_UP_S * 1e9:
             raise BoardError(f"{self._where}: no valid reply for {GIVE_UP_S * 1e3:.0f} ms")
 
