@@ -255,6 +255,25 @@ async def test_routes_without_a_robot_say_which_service_is_missing(robot):
             '{"encoder": {"left": null, "right": null}, "pose": {"x": 0, "y": 0, "theta": 0}}')
 
 
+async def test_an_answer_refused_or_unreadable_is_a_502_naming_the_key(robot):
+    """Whatever answers odom/reset or cmd/motion (on a robot without access control, anyone
+    may) can reply garbage or an error: the caller gets a 502 naming the key, not a 500."""
+    async with webapi(robot) as http, robot.node("impostor") as node:
+        garbled = node.session.declare_queryable(node.key(keys.ODOM_RESET),
+                                                 lambda q: q.reply(q.key_expr, b"\x93garbage"))
+        refusing = node.session.declare_queryable(node.key(keys.MOTION), lambda q: q.reply_err(b"busy"))
+        await asyncio.sleep(0.3)
+        status, ctype, body = await http.get("/robot/pose/reset")
+        assert (status, ctype) == (502, "application/json"), body
+        assert f"icefloe/{robot.name}/odom/reset" in json.loads(body)["message"]
+        status, _, body = await http.get("/robot/set/velocity", value="10,10", time="0.2")
+        assert status == 502 and json.loads(body)["message"].endswith(f"icefloe/{robot.name}/cmd/motion: busy")
+        assert "Traceback" not in http.proc.output and http.proc.alive()
+        assert await http.get("/hat/button/get") == (200, TEXT, "0")
+        garbled.undeclare()
+        refusing.undeclare()
+
+
 async def test_bad_bus_payloads_are_dropped_and_the_service_goes_on(robot):
     async with webapi(robot) as http, robot.node("tester") as node:
         await asyncio.sleep(0.3)

@@ -24,7 +24,7 @@ from aiohttp.http_exceptions import HttpProcessingError
 
 from icefloe.client import AsyncRobot
 from icefloe.credentials import GUEST_USER
-from icefloe.errors import NotConfirmed, NotReachable
+from icefloe.errors import BadPayload, NotConfirmed, NotReachable
 from icefloe.logs import LimitedLog, printable
 from icefloe.router import access_control, permits
 from icefloe.runtime import Node
@@ -64,7 +64,8 @@ LIMITED = web.AppKey("limited", LimitedLog)
 
 @web.middleware
 async def errors(request: web.Request, handler: Handler) -> web.StreamResponse:
-    """Turn refusals into the old server's 400 JSON, and silent services into 503."""
+    """Turn refusals into the old server's 400 JSON, silent services into 503, and an answer
+    that is an error or cannot be read into 502 (each a JSON message naming the key)."""
     try:
         return await handler(request)
     except InvalidCommand as exc:
@@ -77,6 +78,9 @@ async def errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     except NotConfirmed as exc:
         request.app[LIMITED].warning("not confirmed", "%s: %s", request.rel_url, exc)
         return error(503, f"stop not confirmed: {exc}")
+    except BadPayload as exc:  # whatever answered the query said no, or said something unreadable
+        request.app[LIMITED].warning("bad answer", "%s: %s", request.rel_url, exc)
+        return error(502, f"bad answer from the robot: {exc}")
 
 
 class ServerLog(logging.LoggerAdapter):
