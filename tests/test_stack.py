@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -34,12 +35,14 @@ def test_the_default_stack_runs_reports_and_stops_cleanly(tmp_path: Path) -> Non
             alive = res.stdout.split(":", 1)[-1].split()
         assert set(expected) <= set(alive), f"alive {alive}, expected {expected}\n{Path(log.name).read_text()}"
         assert "router" in alive
-        tail = subprocess.Popen([*ICEFLOE, "echo", "log", "--duration", "4", "--config", str(cfg)], stdout=echo,
-                                cwd=ROOT)
-        time.sleep(1.0)
-        # Something worth a log line: a bad command, which hwbridge must reject and survive.
-        subprocess.run([*ICEFLOE, "pub", "cmd/twist", '{"v": 99.0, "w": 0}', "--config", str(cfg)], timeout=30)
-        tail.wait(timeout=30)
+        tail = subprocess.Popen([*ICEFLOE, "echo", "log", "-n", "1", "--duration", "60", "--config", str(cfg)],
+                                stdout=echo, cwd=ROOT)
+        # Something worth a log line: a bad command, which hwbridge must reject and survive. Sent
+        # again until the echo (which may take a while to subscribe on a busy machine) has shown one.
+        while tail.poll() is None:
+            subprocess.run([*ICEFLOE, "pub", "cmd/twist", '{"v": 99.0, "w": 0}', "--config", str(cfg)], timeout=30)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                tail.wait(timeout=3)
         lines = [json.loads(line) for line in Path(echo.name).read_text().splitlines() if line.strip()]
         assert lines, "no log lines on the bus"
         assert all({"stamp", "level", "service", "text"} <= set(e) for e in lines)
