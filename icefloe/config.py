@@ -153,6 +153,64 @@ class Camera(Section):
     """Camera heading relative to the robot's, rad."""
 
 
+class Extloc(Section):
+    """The robot's top marker, for the lab's overhead camera (``[extloc]``, docs/extloc.md).
+
+    An ArUco marker of the overhead camera's dictionary (``overhead.dictionary``), printed
+    with a white border of one cell, lying flat on top of the robot, centred over its centre,
+    its top edge towards the robot's front. The lab's localizer reads it from here."""
+
+    marker_id: Annotated[int, Meta(ge=-1, le=999)] = -1
+    """Its ArUco id (-1 = the robot has no top marker)."""
+    marker_size: Annotated[float, Meta(gt=0, le=1)] = 0.16
+    """Side of its black square, m."""
+    marker_height: Annotated[float, Meta(ge=0, le=2)] = 0.12
+    """Height of the marker above the floor, m."""
+    group: Annotated[int, Meta(ge=0, le=9999)] = 0
+    """The old localiser's group number (``GET /pose/get?group=N``) that means this robot (0 = none)."""
+
+
+class Overhead(Section):
+    """The lab's overhead camera and its localizer (``services/extloc``, in the lab's config;
+    docs/extloc.md)."""
+
+    robots: list[str] = []
+    """The robots it looks for: robot names or config paths (each config's ``[extloc]``)."""
+    source: str = "sim"
+    """"sim" (a rendered top-down view of the robots' ``sim/truth``), "picamera2",
+    "v4l2:<index or path>", or an image folder / video file to replay."""
+    width: Count = 1280
+    height: Count = 720
+    fps: Hz = 30.0
+    dictionary: str = "DICT_4X4_100"
+    """ArUco dictionary of the robots' top markers and the floor markers."""
+    calibration: str = ""
+    """The camera's intrinsics (``icefloe calibrate``'s file); "" = nominal from ``focal_px``."""
+    focal_px: Positive = 410.0
+    """Nominal focal length without a calibration file, pixels."""
+    pose: str = ""
+    """The camera's pose on the floor (``icefloe extloc calibrate``'s file); "" = found from the
+    floor markers at start."""
+    world: str = "lab"
+    """The world file with the floor markers (``[[floor_marker]]``)."""
+    http_port: Annotated[int, Meta(ge=0, le=65_535)] = 8081
+    """The old localiser's HTTP API (``/pose/get``, ``/camera/get``); 0 = none."""
+    http_host: str = "0.0.0.0"
+    image_rate_hz: Annotated[float, Meta(ge=0, le=100)] = 2.0
+    """How often the picture for ``/camera/get`` is encoded (JPEG), Hz."""
+    sim_x: float = 0.0
+    """The simulated camera's lens, world frame, m."""
+    sim_y: float = 0.0
+    sim_z: Annotated[float, Meta(gt=0.3, le=20)] = 2.5
+    sim_yaw: float = 0.0
+    """Where the top of the simulated picture points on the floor, rad CCW from +x."""
+    sim_tilt: Annotated[float, Meta(ge=-0.5, le=0.5)] = 0.0
+    """The simulated camera's tilt from straight down, rad (about the picture's horizontal axis)."""
+    sim_noise: NonNegative = 2.0
+    """Pixel noise of the simulated picture, grey levels (standard deviation)."""
+    sim_seed: Annotated[int, Meta(ge=1)] = 1
+
+
 class Power(Section):
     source: Literal["board", "sim", "i2c"] = "board"
     low_v: Positive = 7.0
@@ -361,6 +419,8 @@ class RobotConfig(Section):
     geometry: Geometry = Geometry()
     hwbridge: Hwbridge = Hwbridge()
     camera: Camera = Camera()
+    extloc: Extloc = Extloc()
+    overhead: Overhead = Overhead()
     power: Power = Power()
     display: Display = Display()
     odometry: Odometry = Odometry()

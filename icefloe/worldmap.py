@@ -30,6 +30,16 @@ simulator (only the simulator's camera sees them; see `Board`)::
     yaw = 3.14159             # direction the printed face points, rad, CCW from +x
     tilt = 0.35               # leaning back by this, rad (top edge away from the viewer)
 
+A world may also lie ArUco markers flat on the floor, for the lab's overhead camera to find
+its own pose from (``icefloe extloc calibrate``, docs/extloc.md; the robots' cameras ignore them)::
+
+    [[floor_marker]]
+    id = 80                   # ArUco id in the overhead camera's dictionary (overhead.dictionary)
+    x = 1.7                   # centre of the marker on the floor, world frame, m
+    y = -1.7
+    size = 0.2                # side of the black square, m
+    yaw = 0.0                 # where the marker's top edge points, rad, CCW from +x
+
 World frame: x and y on the floor, z up, angles counter-clockwise from +x.
 """
 
@@ -100,6 +110,25 @@ class Board(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             raise ValueError("`marker` must be > 0 and smaller than `square` for a charuco board")
 
 
+class FloorMarker(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """An ArUco marker lying flat on the floor (a ``[[floor_marker]]`` table), seen from above."""
+
+    id: Annotated[int, msgspec.Meta(ge=0)]
+    x: float
+    """Centre, world frame, m."""
+    y: float
+    """Centre, world frame, m."""
+    size: Annotated[float, msgspec.Meta(gt=0)]
+    """Side of the black square, m."""
+    yaw: float = 0.0
+    """Where the marker's top edge points, rad, counter-clockwise from +x."""
+
+    def __post_init__(self) -> None:
+        for key in ("x", "y", "size", "yaw"):
+            if not math.isfinite(getattr(self, key)):
+                raise ValueError(f"`{key}` must be a finite number")
+
+
 class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """A named set of markers with unique ids (a world file: ``name`` and ``[[marker]]`` tables),
     and the calibration boards standing in it (``[[board]]``)."""
@@ -107,6 +136,7 @@ class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     name: str = ""
     markers: tuple[Marker, ...] = msgspec.field(default=(), name="marker")
     boards: tuple[Board, ...] = msgspec.field(default=(), name="board")
+    floor_markers: tuple[FloorMarker, ...] = msgspec.field(default=(), name="floor_marker")
 
     def marker(self, id: int) -> Marker | None:
         """The marker with this ArUco id, or None if the world has none."""
@@ -124,6 +154,12 @@ def parse_world(data: dict[str, Any], source: str) -> WorldMap:
         if m.id in first:
             raise ConfigError(f"{source}: marker[{i}].id: id {m.id} is already used by marker[{first[m.id]}]")
         first[m.id] = i
+    floor: dict[int, int] = {}
+    for i, f in enumerate(world.floor_markers):
+        if f.id in floor:
+            raise ConfigError(f"{source}: floor_marker[{i}].id: id {f.id} is already used by "
+                              f"floor_marker[{floor[f.id]}]")
+        floor[f.id] = i
     return world if world.name else msgspec.structs.replace(world, name=Path(source).stem)
 
 

@@ -74,6 +74,8 @@ OLED_FRAME = Topic("oled/frame", m.OledFrame, "out")
 LOG = Topic("log", m.Log, "out")
 CLOCK = Topic("clock", m.Clock, "out")
 """The time of a recording being replayed (published by ``icefloe replay --clock`` only)."""
+EXTLOC_POSE = Topic("extloc/pose", m.ExternalPose, "out")
+"""The robot's pose from the lab's overhead camera; published by the lab's localizer only (docs/extloc.md)."""
 TRUTH = Topic("sim/truth", m.Truth, "out")
 SIM_GPIO = Topic("sim/gpio", m.GpioLevel, "out")
 """Simulated GPIO line levels; each line's driver publishes it (see `GpioLevel`)."""
@@ -91,7 +93,7 @@ TABLE: dict[str, Topic] = {
         TWIST, WHEELS_CMD, STOP, MOTION, HALT, LEDS, LEDARRAY, OLED_TEXT, OLED_SCREEN, BOARD_TEXT,
         BOARD_SCREEN,
         WHEELS, LOOP, HW_BATTERY, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
-        BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, TRUTH, SIM_GPIO,
+        BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, EXTLOC_POSE, TRUTH, SIM_GPIO,
         ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL,
     )
 }  # fmt: skip

@@ -300,6 +300,26 @@ class PoseEstimate(Message):
     """3x3 covariance of (x, y, theta), row-major, 9 numbers (m^2, m*rad, rad^2)."""
 
 
+class ExternalPose(Message):
+    """``extloc/pose``: the robot's pose as the lab's overhead camera sees it (``services/extloc``),
+    in the world frame (that of the world map, ``sim/truth`` and ``loc/pose``). Published only
+    for a frame in which the robot's top marker was seen: no pose is repeated. Only the lab's
+    localizer may publish it (docs/extloc.md)."""
+
+    stamp: int
+    """When the frame was taken, ns since the Unix epoch."""
+    x: float
+    """m."""
+    y: float
+    """m."""
+    theta: float
+    """rad, counter-clockwise from +x, in (-pi, pi]: where the robot's front points."""
+    covariance: list[float]
+    """3x3 covariance of (x, y, theta), row-major, 9 numbers (m^2, m*rad, rad^2)."""
+    side_px: float = 0.0
+    """Side of the robot's top marker in the picture, px: how well it was seen."""
+
+
 class Truth(Message):
     """``sim/truth``: the simulated robot's true pose (simulator only)."""
 

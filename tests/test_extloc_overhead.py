@@ -1,0 +1,106 @@
+"""The lab's overhead camera, pure logic: the simulated picture, calibration from the floor, and
+the robots' poses against the truth they were drawn at (no processes; a few seconds)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from icefloe import config as config_mod
+from icefloe.errors import ConfigError
+from icefloe.services.camera.geometry import Intrinsics
+from icefloe.services.extloc import locate
+from icefloe.services.extloc.geometry import CameraPose, flat_square_corners, project
+from icefloe.sim.overhead import OverheadRenderer, RobotView
+from icefloe.worldmap import load_world, parse_world
+
+DICTIONARY = "DICT_4X4_100"
+
+
+def lab_robots(n: int, seed: int = 3) -> list[RobotView]:
+    """``n`` robots spread over the 4 m x 4 m lab, headings at random."""
+    rng = np.random.default_rng(seed)
+    return [RobotView(20 + i, 0.16, 0.12, -1.2 + (i % 5) * 0.6 + rng.uniform(-0.1, 0.1),
+                      -1.2 + (i // 5) * 0.6 + rng.uniform(-0.1, 0.1), rng.uniform(-math.pi, math.pi))
+            for i in range(n)]
+
+
+@pytest.fixture(scope="module")
+def camera() -> tuple[Intrinsics, CameraPose, OverheadRenderer]:
+    intrinsics = Intrinsics.nominal(410.0, 1280, 720)
+    truth = CameraPose.looking_down(0.03, -0.02, 2.5, yaw=0.01, tilt=0.02)  # hung a little off
+    return intrinsics, truth, OverheadRenderer(load_world("lab"), intrinsics, truth, DICTIONARY)
+
+
+def test_overhead_sim_camera_draws_the_floor_markers_and_every_robot_where_they_are(camera) -> None:
+    intrinsics, truth, renderer = camera
+    robots = lab_robots(20)
+    image = renderer.render(robots)
+    assert image.shape == (720, 1280, 3)
+    seen = locate.find_markers(locate.make_detector(DICTIONARY), image)
+    world = load_world("lab")
+    assert set(seen) == {f.id for f in world.floor_markers} | {r.marker_id for r in robots}
+    for robot in robots:  # each corner within a fraction of a pixel of where the geometry puts it
+        expected = project(intrinsics, truth, flat_square_corners(robot.x, robot.y, robot.marker_height,
+                                                                  robot.theta, robot.marker_size / 2))
+        assert np.abs(seen[robot.marker_id] - expected).max() < 0.5, robot
+
+
+def test_overhead_calibration_finds_the_camera_from_the_floor_markers(camera) -> None:
+    intrinsics, truth, renderer = camera
+    image = renderer.render(lab_robots(3))
+    seen = locate.find_markers(locate.make_detector(DICTIONARY), image)
+    found = locate.calibrate(intrinsics, load_world("lab"), seen)
+    assert np.linalg.norm(found.pose.lens - truth.lens) < 0.01  # the lens within 1 cm
+    assert found.rms_px < 0.5 and found.rms_floor_m < 0.003
+    assert len(found.markers) == 8
+
+
+def test_overhead_calibration_with_too_few_floor_markers_says_which_it_saw(camera) -> None:
+    intrinsics, _, renderer = camera
+    seen = locate.find_markers(locate.make_detector(DICTIONARY), renderer.render([]))
+    with pytest.raises(locate.CalibrationFailed, match=r"1 of world lab's 8 floor markers in view"):
+        locate.calibrate(intrinsics, load_world("lab"), {80: seen[80]})
+
+
+def test_overhead_locator_gives_each_robot_its_true_pose(camera) -> None:
+    intrinsics, _, renderer = camera
+    world = load_world("lab")
+    detector = locate.make_detector(DICTIONARY)
+    pose = locate.calibrate(intrinsics, world, locate.find_markers(detector, renderer.render([]))).pose
+    robots = lab_robots(20)
+    tops = {r.marker_id: locate.TopMarker(f"r{r.marker_id}", r.marker_id, r.marker_size, r.marker_height)
+            for r in robots}
+    fixes = locate.Locator(DICTIONARY, intrinsics, pose, tops).locate(renderer.render(robots))
+    assert sorted(f.robot for f in fixes) == sorted(t.robot for t in tops.values())
+    for fix in fixes:
+        robot = next(r for r in robots if f"r{r.marker_id}" == fix.robot)
+        assert math.hypot(fix.x - robot.x, fix.y - robot.y) < 0.005, fix
+        assert abs(math.remainder(fix.theta - robot.theta, math.tau)) < math.radians(2), fix
+        assert 0 < fix.sigma_xy < 0.01 and 0 < fix.sigma_theta < 0.1
+
+
+def test_overhead_locator_sees_nothing_of_a_robot_out_of_view(camera) -> None:
+    intrinsics, truth, renderer = camera
+    away = RobotView(20, 0.16, 0.12, 5.0, 0.0, 0.0)  # beyond the wall
+    tops = {20: locate.TopMarker("r20", 20, 0.16, 0.12)}
+    assert locate.Locator(DICTIONARY, intrinsics, truth, tops).locate(renderer.render([away])) == []
+
+
+def test_overhead_top_marker_config_is_checked_and_named() -> None:
+    with pytest.raises(ConfigError, match=r"r\.toml: extloc\.marker_size"):
+        config_mod.parse({"extloc": {"marker_size": 0}}, "r.toml")
+    with pytest.raises(ConfigError, match=r"r\.toml: extloc\.marker_id"):
+        config_mod.parse({"extloc": {"marker_id": -5}}, "r.toml")
+    with pytest.raises(ConfigError, match=r"lab\.toml: \[overhead\]"):
+        config_mod.parse({"overhead": {"lens": 3}}, "lab.toml")
+    with pytest.raises(ConfigError, match=r"w\.toml: floor_marker\[1\]\.id: id 80 is already used"):
+        parse_world({"floor_marker": [{"id": 80, "x": 0, "y": 0, "size": 0.2},
+                                      {"id": 80, "x": 1, "y": 0, "size": 0.2}]}, "w.toml")
+    world = load_world("lab")
+    with pytest.raises(ConfigError, match=r"b: extloc\.marker_id: 20 is robot a's too"):
+        locate.top_markers([locate.TopMarker("a", 20, 0.16, 0.1), locate.TopMarker("b", 20, 0.16, 0.1)], world)
+    with pytest.raises(ConfigError, match=r"a: extloc\.marker_id: 80 is a floor marker's id in world lab"):
+        locate.top_markers([locate.TopMarker("a", 80, 0.16, 0.1)], world)
