@@ -408,7 +408,7 @@ class AsyncRobot:
         self.node = Node(service, self.config)
         self._latest = {t.name: _Latest(t) for t in
                         (keys.ODOM_POSE, keys.WHEELS, keys.HW_BATTERY, keys.LANDMARKS, keys.IMAGE,
-                         keys.LOC_POSE, keys.DIP)}
+                         keys.LOC_POSE, keys.DIP, keys.EXTLOC_POSE)}
         self._tasks: list[asyncio.Task[None]] = []
         self._hold: asyncio.Task[None] | None = None
         self._moved = False
@@ -601,6 +601,14 @@ class AsyncRobot:
         theta (rad, CCW), and its 3x3 covariance. Unlike `pose` (odometry) it does not drift:
         it is corrected by the ArUco markers the camera sees."""
         return self._latest[keys.LOC_POSE.name].value
+
+    @property
+    def external_pose(self) -> m.ExternalPose | None:
+        """Latest ``extloc/pose``: the robot's pose as the lab's overhead camera saw it (x, y in m,
+        theta in rad, in the world frame, with its 3x3 covariance; docs/extloc.md). Ground truth
+        for your own estimates; None until the robot has been seen (and it is not repeated while
+        the robot is out of view: check its ``stamp``)."""
+        return self._latest[keys.EXTLOC_POSE.name].value
 
     @property
     def dip(self) -> int | None:
@@ -1162,6 +1170,12 @@ class Robot:
     def localized_pose(self) -> m.PoseEstimate:
         """Latest ``loc/pose``: the localizer's x, y (m), theta (rad) in the map, with covariance."""
         return self._state(keys.LOC_POSE.name, lambda r: r.localized_pose)
+
+    @property
+    def external_pose(self) -> m.ExternalPose:
+        """Latest ``extloc/pose``: the lab's overhead camera's x, y (m), theta (rad) in the world,
+        with covariance (docs/extloc.md)."""
+        return self._state(keys.EXTLOC_POSE.name, lambda r: r.external_pose)
 
     @property
     def dip(self) -> int:

@@ -335,6 +335,11 @@ class Sim(Section):
     """Relative wheel slip noise (0 = none)."""
     encoder_noise: NonNegative = 0.0
     truth_rate_hz: Hz = 50.0
+    start_x: float = 0.0
+    """Where the simulated robot stands at start, world frame, m (robots of a simulated lab apart)."""
+    start_y: float = 0.0
+    start_theta: float = 0.0
+    """Its heading at start, rad."""
     camera: bool = True
     icoboard: Literal["python", "gateware"] = "python"
     """The simulated icoBoard: "python" (the protocol model, sim/icoboard.py) or "gateware"

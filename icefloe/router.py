@@ -62,12 +62,15 @@ def _acl_part(name: str, **fill: str | list[str]) -> dict:
     return json.loads(zenoh.Config.from_json5(text).get_json("access_control"))  # Zenoh reads its JSON5
 
 
-def access_control(owners: Sequence[tuple[str, str]], lab_protocols: Sequence[str] = ()) -> dict:
+def access_control(owners: Sequence[tuple[str, str]], lab_protocols: Sequence[str] = (),
+                   localizers: Sequence[str] = ()) -> dict:
     """Zenoh's ``access_control`` for (robot, user) pairs: `everyone.json5` once, `owner.json5` per
-    robot, and `lab-link.json5` when the router joins a lab over ``lab_protocols``."""
+    robot, `localizer.json5` per user of ``localizers`` (the lab's external localizer), and
+    `lab-link.json5` when the router joins a lab over ``lab_protocols``."""
     read_only = [keys.key("*", topic) for topic in keys.READ_ONLY_QUERIES]
     parts = [_acl_part("everyone", read_only_queries=read_only)]
     parts += [_acl_part("owner", robot=robot, user=user) for robot, user in owners]
+    parts += [_acl_part("localizer", user=user) for user in localizers]
     if lab_protocols:
         parts.append(_acl_part("lab-link", protocols=sorted(set(lab_protocols))))
     return {"enabled": True, "default_permission": "deny",
@@ -122,7 +125,8 @@ def check_router(config: RobotConfig) -> None:
         raise ConfigError(f"{config.source}: zenoh.config: Zenoh refused it: {exc}") from None
 
 
-def router_config(config: RobotConfig, owners: Sequence[Owner], users_file: Path | None = None) -> zenoh.Config:
+def router_config(config: RobotConfig, owners: Sequence[Owner], users_file: Path | None = None,
+                  localizers: Sequence[str] = ()) -> zenoh.Config:
     """Zenoh config of the router: with access control for ``owners`` (and the guest) when
     there are any, their passwords in ``users_file`` (`write_users`); joined to the lab router
     of ``[zenoh] lab`` if there is one, logged in there with the robot's own credentials."""
@@ -141,7 +145,8 @@ def router_config(config: RobotConfig, owners: Sequence[Owner], users_file: Path
             raise ValueError("access control needs the users file (write_users)")
         zc.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(users_file)))
         lab = [protocol(e) for e in config.zenoh.lab]
-        zc.insert_json5("access_control", json.dumps(access_control([(o.robot, o.user) for o in owners], lab)))
+        zc.insert_json5("access_control", json.dumps(access_control([(o.robot, o.user) for o in owners], lab,
+                                                                    localizers)))
     return zc
 
 
@@ -158,18 +163,18 @@ def write_users(folder: Path, owners: Sequence[Owner]) -> Path:
     return path
 
 
-def open_router(config: RobotConfig, owners: Sequence[Owner]) -> zenoh.Session:
+def open_router(config: RobotConfig, owners: Sequence[Owner], localizers: Sequence[str] = ()) -> zenoh.Session:
     """Open the router's session; the users file exists only while Zenoh reads it."""
     users = write_users(config.runtime_dir, owners) if owners else None
     try:
-        return zenoh.open(router_config(config, owners, users))
+        return zenoh.open(router_config(config, owners, users, localizers))
     finally:
         if users is not None:
             users.unlink(missing_ok=True)
 
 
-async def serve(config: RobotConfig, owners: Sequence[Owner], what: str) -> None:
-    session = open_router(config, owners)
+async def serve(config: RobotConfig, owners: Sequence[Owner], what: str, localizers: Sequence[str] = ()) -> None:
+    session = open_router(config, owners, localizers)
     token = session.liveliness().declare_token(keys.alive_key(config.name, "router"))
     joined = f", joined to the lab router at {', '.join(config.zenoh.lab)}" if config.zenoh.lab else ""
     print(f"{what} listening on {', '.join(config.zenoh.listen)}{joined}", flush=True)
@@ -203,7 +208,10 @@ async def lab_main(config: RobotConfig, lab_dir: Path) -> None:
     if config.zenoh.lab:
         raise ConfigError(f"{config.source}: a lab router does not join another (zenoh.lab is set)")
     owners = lab_owners(lab_dir)
-    await serve(config, owners, f"lab router for {', '.join(o.robot for o in owners)}")
+    # The lab's own credentials file (its robot: this config's name) is the lab's external
+    # localizer's login: it alone may publish the robots' `extloc/pose` (docs/extloc.md).
+    localizers = [o.user for o in owners if o.robot == config.name]
+    await serve(config, owners, f"lab router for {', '.join(o.robot for o in owners)}", localizers)
 
 
 if __name__ == "__main__":

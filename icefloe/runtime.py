@@ -301,8 +301,8 @@ class Batches(Generic[T]):
 class Publisher(Generic[T]):
     """Publishes one message type on one key, as MessagePack."""
 
-    def __init__(self, node: Node, topic: Topic, *, express: bool = False) -> None:
-        self.key_expr = node.key(topic)
+    def __init__(self, node: Node, topic: Topic, *, express: bool = False, robot: str | None = None) -> None:
+        self.key_expr = keys.key(robot or node.robot, topic)
         self._type = topic.type
         self._pub = node.session.declare_publisher(
             self.key_expr,
@@ -457,8 +457,9 @@ class Node:
 
     # ------------------------------------------------------------------ publishing
 
-    def publisher(self, topic: Topic, *, express: bool = False) -> Publisher[Any]:
-        pub: Publisher[Any] = Publisher(self, topic, express=express)
+    def publisher(self, topic: Topic, *, express: bool = False, robot: str | None = None) -> Publisher[Any]:
+        """Publishes ``topic`` on this robot, or on ``robot`` (the lab's localizer speaks for every robot)."""
+        pub: Publisher[Any] = Publisher(self, topic, express=express, robot=robot)
         self._closables.append(pub._pub)
         return pub
 

@@ -104,3 +104,27 @@ def test_overhead_top_marker_config_is_checked_and_named() -> None:
         locate.top_markers([locate.TopMarker("a", 20, 0.16, 0.1), locate.TopMarker("b", 20, 0.16, 0.1)], world)
     with pytest.raises(ConfigError, match=r"a: extloc\.marker_id: 80 is a floor marker's id in world lab"):
         locate.top_markers([locate.TopMarker("a", 80, 0.16, 0.1)], world)
+
+
+def test_overhead_calibrate_command_from_an_image_file(camera, tmp_path, capsys) -> None:
+    import cv2
+
+    from icefloe.cli import main
+    from icefloe.services.extloc.geometry import load_pose
+
+    _, truth, renderer = camera
+    picture = tmp_path / "overhead.png"
+    cv2.imwrite(str(picture), renderer.render(lab_robots(5)))
+    lab = tmp_path / "lab.toml"
+    lab.write_text(f'name = "lab"\n[overhead]\nrobots = ["sim"]\npose = "{tmp_path / "pose.yaml"}"\n')
+    assert main(["extloc", "calibrate", str(lab), "--image", str(picture)]) == 0
+    out = capsys.readouterr().out
+    assert "floor markers used: 80, 81, 82, 83, 84, 85, 86, 87 of 8 in world lab" in out
+    assert "px RMS" in out and "mm RMS" in out
+    pose = load_pose(tmp_path / "pose.yaml", 1280, 720)
+    assert np.linalg.norm(pose.lens - truth.lens) < 0.01
+    # A picture without floor markers: one line saying what it saw, exit status 2.
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((720, 1280, 3), 128, np.uint8))
+    assert main(["extloc", "calibrate", str(lab), "--image", str(blank)]) == 2
+    assert "0 of world lab's 8 floor markers in view" in capsys.readouterr().err

@@ -81,6 +81,7 @@ class Simulator:
         sim = config.sim
         self.world = World(config.geometry, seed=sim.seed, slip=sim.slip,
                            encoder_noise=sim.encoder_noise)
+        self.world.set_pose(sim.start_x, sim.start_y, sim.start_theta)  # where the robot stands in the lab
         self.board: IcoBoardSim | PenguinPiSim
         if config.board.kind == "icoboard":
             self.board = IcoBoardSim(self.world, config.board, seed=self.world.seed,
