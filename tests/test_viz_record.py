@@ -32,7 +32,8 @@ async def test_records_every_stream_with_the_published_values(robot, tmp_path):
 
     data = read_rrd(out)
     root = f"/robots/{robot.name}"
-    for entity in ("map/odom", "map/loc", "map/loc/covariance", "map/truth", "map/rays", "camera/image",
+    for entity in ("map/odom", "map/loc", "map/loc/covariance", "map/truth", "map/extloc",
+                   "map/extloc/covariance", "map/rays", "camera/image",
                    "camera/image/markers", "oled", "wheels/left/target", "wheels/right/measured",
                    "battery/voltage/filtered", "battery/current/raw", "loop/latency_ms/p99",
                    "loop/errors/overruns", "log"):

@@ -37,7 +37,7 @@ FOV = math.radians(60)
 RATES_HZ = {  # the real stack's default rates
     keys.WHEELS: 100.0, keys.ODOM_POSE: 50.0, keys.TRUTH: 50.0, keys.LOC_POSE: 10.0,
     keys.LANDMARKS: 10.0, keys.IMAGE: 2.0, keys.HW_BATTERY: 10.0, keys.BATTERY: 1.0,
-    keys.LOOP: 1.0, keys.OLED_FRAME: 5.0, keys.LOG: 0.5,
+    keys.LOOP: 1.0, keys.OLED_FRAME: 5.0, keys.LOG: 0.5, keys.EXTLOC_POSE: 15.0,
 }  # fmt: skip
 
 
@@ -92,6 +92,9 @@ class DemoRobot:
             sx, sy = 0.02 + 0.01 * math.sin(t), 0.01
             return m.PoseEstimate(stamp=stamp, x=x + noise(0, 0.01), y=y + noise(0, 0.01), theta=theta,
                                   covariance=[sx * sx, 0.3 * sx * sy, 0, 0.3 * sx * sy, sy * sy, 0, 0, 0, 0.01])
+        if topic is keys.EXTLOC_POSE:  # the lab's overhead camera: within a millimetre or so
+            return m.ExternalPose(stamp=stamp, x=x + noise(0, 0.001), y=y + noise(0, 0.001), theta=theta,
+                                  covariance=[1e-6, 0, 0, 0, 1e-6, 0, 0, 0, 1e-4], side_px=27.0)
         if topic is keys.LANDMARKS:
             return m.Landmarks(stamp=stamp, landmarks=self.seen(t))
         if topic is keys.IMAGE:

@@ -61,6 +61,8 @@ TRAIL_RATE_HZ = 2.0
 ODOM_COLOR = (60, 140, 255)
 LOC_COLOR = (40, 200, 90)
 TRUTH_COLOR = (150, 150, 150)
+EXTLOC_COLOR = (190, 70, 220)
+"""The lab's overhead camera's pose of the robot (``extloc/pose``)."""
 MARKER_COLOR = (230, 60, 60)
 RAY_COLOR = (250, 200, 40)
 TEXT_LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "error": "ERROR", "critical": "CRITICAL"}
@@ -156,7 +158,7 @@ class RobotLogger:
         self.capture_width = capture_width
         """Width of the frames the detector ran on; marker corners are in its pixels (0 = same as the image)."""
         self._image_width = 0
-        self._trails = {"odom": Trail(), "loc": Trail(), "truth": Trail()}
+        self._trails = {"odom": Trail(), "loc": Trail(), "truth": Trail(), "extloc": Trail()}
         self._trail_rate = {name: Decimator(TRAIL_RATE_HZ) for name in self._trails}
         self._ray_pose: dict[str, tuple[float, float, float]] = {}
 
@@ -205,6 +207,12 @@ class RobotLogger:
 
     def truth(self, msg: m.Truth) -> None:
         self._pose("truth", msg.stamp, msg.x, msg.y, msg.theta, TRUTH_COLOR)
+
+    def extloc(self, msg: m.ExternalPose) -> None:
+        """The overhead camera's pose, next to odometry's and the localizer's, with its uncertainty."""
+        self._pose("extloc", msg.stamp, msg.x, msg.y, msg.theta, EXTLOC_COLOR)
+        outline = covariance_ellipse(msg.x, msg.y, msg.covariance)  # ValueError: dropped by the caller
+        self._log("map/extloc/covariance", rr.LineStrips2D([outline], colors=EXTLOC_COLOR, radii=0.004))
 
     def loc(self, msg: m.PoseEstimate) -> None:
         self._pose("loc", msg.stamp, msg.x, msg.y, msg.theta, LOC_COLOR)
