@@ -219,3 +219,32 @@ async def test_follow_marker_reaches_its_marker(robot):
         assert 0.25 < distance < 0.6, f"ended {distance:.2f} m from the marker:\n{out}"
         facing = math.atan2(MARKER_5[1] - end.y, MARKER_5[0] - end.x) - end.theta
         assert abs(math.atan2(math.sin(facing), math.cos(facing))) < math.radians(15)
+
+
+@pytest.mark.timeout(300)
+async def test_go_to_pose_overhead_reaches_its_goal_with_the_external_pose_only(make_robot, tmp_path):
+    """examples/go_to_pose.py against a simulated lab of one robot: its simulator, hwbridge and the
+    lab's overhead localizer (services/extloc); no odometry, no localizer on the robot."""
+    import json
+
+    robot = make_robot("[extloc]\nmarker_id = 20\n\n[sim]\nstart_x = -0.5\nstart_y = -0.3\nstart_theta = 0.5\n")
+    for service in ("sim", "hwbridge"):
+        robot.start(service)
+    lab = tmp_path / "lab.toml"
+    lab.write_text(f'name = "lab"\nrun_dir = "{tmp_path / "run-lab"}"\n[overhead]\n'
+                   f"robots = {json.dumps([str(robot.config_path)])}\nfps = 15.0\nhttp_port = 0\n"
+                   f"[zenoh]\nlisten = []\nconnect = {json.dumps(robot.config.zenoh.connect)}\n")
+    robot.start_module("icefloe.services.extloc", "--config", str(lab), name="extloc")
+    async with robot.node("tester") as node:
+        truths = Truths(node)
+        poses = node.subscribe(keys.EXTLOC_POSE)
+        await asyncio.wait_for(anext(poses), 60)  # the localizer sees the robot
+        goal = (0.4, 0.3, -1.2)
+        out = await run_example("examples/go_to_pose.py", "--config", str(robot.config_path),
+                                "--x", str(goal[0]), "--y", str(goal[1]), "--theta", str(goal[2]), timeout=240)
+        await asyncio.sleep(0.5)
+        truths.close()
+        end = truths.last
+    assert "goal reached" in out, out
+    assert math.hypot(end.x - goal[0], end.y - goal[1]) < 0.05, (end, out)
+    assert abs(math.remainder(end.theta - goal[2], math.tau)) < math.radians(6), (end, out)

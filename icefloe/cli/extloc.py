@@ -69,7 +69,7 @@ def calibrate(args: argparse.Namespace) -> int:
 def register(verbs: argparse._SubParsersAction) -> None:
     p = verbs.add_parser("extloc", help="the lab's overhead camera: find its pose from the floor markers",
                          description="The lab's external localizer (docs/extloc.md).")
-    sub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    sub = p.add_subparsers(dest="action", required=True, metavar="ACTION", help="calibrate")
     c = sub.add_parser("calibrate", help="find the overhead camera's pose from the world's floor markers",
                        description=__doc__.split("\n\n")[1].replace("\n", " "))
     c.add_argument("config", metavar="LAB_CONFIG", help="the lab's config, with [overhead] (a name or a .toml path)")
