@@ -123,9 +123,11 @@ async def main(config: RobotConfig) -> None:
                 def on_truth(sample: zenoh.Sample, name: str = robot.name) -> None:  # a Zenoh reader thread
                     if not keys.is_concrete(str(sample.key_expr)):
                         return  # a truth put on a wildcard is nobody's
-                    with contextlib.suppress(BadPayload):  # a bad truth is the simulator's problem, not ours
+                    try:
                         sim.set_truth(name, codec.decode(sample.payload.to_bytes(), str(sample.encoding), m.Truth,
                                                          str(sample.key_expr)))
+                    except BadPayload as exc:  # the simulated camera keeps the robot's last truth
+                        node.limited.warning("truth", "dropped a bad sim/truth: %s", exc)
                 node.on_samples(keys.key(robot.name, keys.TRUTH), on_truth)
         opener = (lambda: sim) if sim is not None else (lambda: open_overhead(ov, robots))
         thread = threading.Thread(target=capture, args=(config, node, slot, stop, opener),
