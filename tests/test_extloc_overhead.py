@@ -180,3 +180,18 @@ async def test_overhead_old_api_answers_hostile_requests_in_bounded_work() -> No
     finally:
         oldapi.cv2.imencode = real_imencode
         await api.stop()
+
+
+def test_overhead_lens_distortion_is_undone_before_the_floor() -> None:
+    """With a calibration's distortion (as `icefloe calibrate` writes it), a pixel goes back to the
+    very point on the plane it was projected from; ignoring the distortion would be centimetres off."""
+    from icefloe.services.extloc.geometry import to_plane
+
+    k = np.array([[420.0, 0.0, 645.0], [0.0, 418.0, 355.0], [0.0, 0.0, 1.0]])
+    lens = Intrinsics(k, np.array([-0.28, 0.09, 0.001, -0.0005, -0.01]), 1280, 720)
+    pose = CameraPose.looking_down(0.1, -0.05, 2.5, yaw=0.2, tilt=0.03)
+    points = np.array([[x, y, 0.12] for x in np.linspace(-1.8, 1.8, 7) for y in np.linspace(-1.8, 1.8, 7)])
+    pixels = project(lens, pose, points)
+    assert np.abs(to_plane(lens, pose, pixels, 0.12) - points).max() < 1e-6
+    pinhole = Intrinsics(k, np.zeros(5), 1280, 720)
+    assert np.abs(to_plane(pinhole, pose, pixels, 0.12) - points).max() > 0.05
