@@ -104,6 +104,12 @@ def test_overhead_top_marker_config_is_checked_and_named() -> None:
         locate.top_markers([locate.TopMarker("a", 20, 0.16, 0.1), locate.TopMarker("b", 20, 0.16, 0.1)], world)
     with pytest.raises(ConfigError, match=r"a: extloc\.marker_id: 80 is a floor marker's id in world lab"):
         locate.top_markers([locate.TopMarker("a", 80, 0.16, 0.1)], world)
+    with pytest.raises(ConfigError, match=r"a: extloc\.marker_id: 100 is not in DICT_4X4_100 \(overhead\.dictionary"):
+        locate.top_markers([locate.TopMarker("a", 100, 0.16, 0.1)], world)
+    with pytest.raises(ConfigError, match=r"overhead\.dictionary: 'DICT_NOPE' is not an OpenCV ArUco dictionary"):
+        locate.top_markers([locate.TopMarker("a", 1, 0.16, 0.1)], world, "DICT_NOPE")
+    with pytest.raises(ConfigError, match=r"world lab: floor marker 87 is not in DICT_4X4_50"):
+        locate.top_markers([locate.TopMarker("a", 1, 0.16, 0.1)], world, "DICT_4X4_50")
 
 
 def test_overhead_calibrate_command_from_an_image_file(camera, tmp_path, capsys) -> None:

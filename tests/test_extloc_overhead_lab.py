@@ -3,7 +3,8 @@
 A lab router (``icefloe router --lab``), two simulated robots (``sim`` + ``hwbridge``, each with
 its own router joined to the lab), and the lab's localizer (``services.extloc``) logged in with
 the lab's own credentials, rendering the overhead camera from the robots' ``sim/truth``. Checked:
-each robot's pose on its own ``extloc/pose`` against the simulator's truth; a robot driven out
+each robot's pose on its own ``extloc/pose`` against the simulator's truth, on the lab router and
+on the robot's own router; a robot driven out
 of view gets no pose; the old localiser's HTTP API as pibot_client calls it (through
 ``requests``); and a student who forges an external pose, their own robot's or another's, on the
 lab router or their robot's own router, with or without wildcards, is refused. Takes 30-60 s.
@@ -119,6 +120,12 @@ async def test_overhead_localizer_in_a_simulated_lab(tmp_path: Path) -> None:
                     assert math.hypot(pose.x - truth.x, pose.y - truth.y) < 0.01, (name, pose, truth)
                     assert abs(math.remainder(pose.theta - truth.theta, math.tau)) < math.radians(1.5)
                     assert pose.covariance[0] < 0.01**2 and pose.side_px > 15
+
+                # A laptop plugged straight into robot A's own router reads A's external pose too:
+                # the lab router passes it over A's lab link.
+                async with Node("laptop", guest_config(lab.endpoints[a]), announce=False) as local:
+                    mine = local.subscribe(keys.EXTLOC_POSE, robot=a)
+                    assert (await asyncio.wait_for(anext(mine), 30)).x == pytest.approx(STARTS[0][0], abs=0.01)
 
                 # The old localiser's API, as pibot_client calls it: group 1 is the first robot.
                 x, y, theta = get_localizer_pose("127.0.0.1", http_port, 1)

@@ -109,7 +109,7 @@ async def main(config: RobotConfig) -> None:
     robots = robot_configs(config)
     world = load_world(ov.world)
     tops = locate.top_markers([locate.TopMarker(r.name, r.extloc.marker_id, r.extloc.marker_size,
-                                                r.extloc.marker_height) for r in robots], world)
+                                                r.extloc.marker_height) for r in robots], world, ov.dictionary)
     group_of = groups(robots, config.source)
     intrinsics = overhead_intrinsics(config)
     camera_pose = load_pose(ov.pose, ov.width, ov.height) if ov.pose else None

@@ -100,13 +100,29 @@ def find_markers(detector: cv2.aruco.ArucoDetector, image: np.ndarray) -> dict[i
     return found
 
 
-def top_markers(robots: list[TopMarker], world: WorldMap) -> dict[int, TopMarker]:
-    """Id → robot; `ConfigError` for two robots with one id, or a robot with a floor marker's id."""
+def dictionary_size(dictionary: str) -> int:
+    """How many markers the ArUco dictionary ``overhead.dictionary`` has; `ConfigError` naming it."""
+    try:
+        return int(cv2.aruco.getPredefinedDictionary(aruco_dictionary(dictionary)).bytesList.shape[0])
+    except ConfigError:
+        raise ConfigError(f"overhead.dictionary: {dictionary!r} is not an OpenCV ArUco dictionary "
+                          "(e.g. DICT_4X4_100)") from None
+
+
+def top_markers(robots: list[TopMarker], world: WorldMap, dictionary: str = "DICT_4X4_100") -> dict[int, TopMarker]:
+    """Id → robot; `ConfigError` for two robots with one id, a robot with a floor marker's id, or
+    an id (a floor marker's too) the dictionary does not have."""
     by_id: dict[int, TopMarker] = {}
     floor = {f.id for f in world.floor_markers}
+    size = dictionary_size(dictionary)
+    if floor and max(floor) >= size:
+        raise ConfigError(f"world {world.name}: floor marker {max(floor)} is not in {dictionary} (ids 0-{size - 1})")
     for robot in robots:
         if robot.marker_id < 0:
             raise ConfigError(f"{robot.robot}: extloc.marker_id: the robot has no top marker (set its id)")
+        if robot.marker_id >= size:
+            raise ConfigError(f"{robot.robot}: extloc.marker_id: {robot.marker_id} is not in {dictionary} "
+                              f"(overhead.dictionary: ids 0-{size - 1})")
         if robot.marker_id in by_id:
             raise ConfigError(f"{robot.robot}: extloc.marker_id: {robot.marker_id} is robot "
                               f"{by_id[robot.marker_id].robot}'s too")
