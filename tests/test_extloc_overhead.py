@@ -129,6 +129,11 @@ def test_overhead_calibrate_command_from_an_image_file(camera, tmp_path, capsys)
     assert "px RMS" in out and "mm RMS" in out
     pose = load_pose(tmp_path / "pose.yaml", 1280, 720)
     assert np.linalg.norm(pose.lens - truth.lens) < 0.01
+    # From a live frame of the lab's camera (here the simulated one, hung 5 cm off centre).
+    live = tmp_path / "live.toml"
+    live.write_text('name = "lab"\n[overhead]\nrobots = ["sim"]\nsim_x = 0.05\nsim_tilt = 0.02\n')
+    assert main(["extloc", "calibrate", str(live), "--out", str(tmp_path / "live.yaml")]) == 0
+    assert "camera lens at x 0.050 m, y 0.000 m, 2.500 m above the floor" in capsys.readouterr().out
     # A picture without floor markers: one line saying what it saw, exit status 2.
     blank = tmp_path / "blank.png"
     cv2.imwrite(str(blank), np.full((720, 1280, 3), 128, np.uint8))

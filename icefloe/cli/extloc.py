@@ -55,11 +55,11 @@ def calibrate(args: argparse.Namespace) -> int:
     frame = read_frame(config, args.image)
     found = locate.calibrate(intrinsics, world, locate.find_markers(locate.make_detector(ov.dictionary), frame))
     save_pose(Path(out).expanduser(), found.pose, intrinsics, found.rms_px, found.rms_floor_m)
-    x, y, z = found.pose.lens
+    x, y, z = (f"{v:.3f}".replace("-0.000", "0.000") for v in found.pose.lens)  # no "-0.000 m"
     lens = "nominal, focal_px" if not ov.calibration else ov.calibration
     used = ", ".join(map(str, found.markers))
     print(f"floor markers used: {used} of {len(world.floor_markers)} in world {world.name}")
-    print(f"camera lens at x {x:.3f} m, y {y:.3f} m, {z:.3f} m above the floor (lens: {lens})")
+    print(f"camera lens at x {x} m, y {y} m, {z} m above the floor (lens: {lens})")
     print(f"reprojection error: {found.rms_px:.2f} px RMS")
     print(f"on the floor: {found.rms_floor_m * 1000:.1f} mm RMS, {found.worst_floor_m * 1000:.1f} mm worst")
     print(f"wrote {out}")
