@@ -11,21 +11,24 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-
-import cv2
-import numpy as np
+from typing import TYPE_CHECKING
 
 from .. import config as config_mod
 from ..errors import IcefloeError
-from ..services.camera.detection import check_frame
-from ..services.extloc import locate
-from ..services.extloc.__main__ import overhead_intrinsics
-from ..services.extloc.geometry import save_pose
-from ..services.extloc.sources import open_overhead
-from ..worldmap import load_world
+
+if TYPE_CHECKING:
+    import numpy as np
+
+# OpenCV and the localizer are imported when the verb runs: `icefloe` itself starts without them.
 
 
 def read_frame(config: config_mod.RobotConfig, image: str | None) -> np.ndarray:
+    import cv2
+    import numpy as np
+
+    from ..services.camera.detection import check_frame
+    from ..services.extloc.sources import open_overhead
+
     ov = config.overhead
     if image:
         data = np.fromfile(image, dtype=np.uint8) if Path(image).is_file() else np.zeros(0, np.uint8)
@@ -45,6 +48,11 @@ def read_frame(config: config_mod.RobotConfig, image: str | None) -> np.ndarray:
 
 
 def calibrate(args: argparse.Namespace) -> int:
+    from ..services.extloc import locate
+    from ..services.extloc.__main__ import overhead_intrinsics
+    from ..services.extloc.geometry import save_pose
+    from ..worldmap import load_world
+
     config = config_mod.load(args.config)
     ov = config.overhead
     out = args.out or ov.pose
