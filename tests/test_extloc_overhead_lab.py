@@ -99,6 +99,7 @@ class Watch:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)  # 30 s alone; a loaded machine starts five routers and services much slower
 async def test_overhead_localizer_in_a_simulated_lab(tmp_path: Path) -> None:
     http_port = free_port()
     with Lab(tmp_path, robots=2, mesh=True, services=("sim", "hwbridge"), extra_toml=robot_toml) as lab:
