@@ -23,17 +23,19 @@ time. Each round starts fresh receiver processes.
   ``Node.subscribe(...)`` yields the decoded message, i.e. including the hop
   from Zenoh's thread into asyncio. Its messages are sent by a `Node` publisher.
 
-With ``--stages`` it also measures two earlier designs of that hop, built here
-from the same parts as the runtime, and prints where the time goes (p50 and p99
-of each stage, from timestamps taken at each step of the same messages):
+With ``--stages`` it also measures two designs of that hop built here from the
+same parts as the runtime, without the rest of `Node` (own-key check, codec),
+and prints where the time goes (p50 and p99 of each stage, from timestamps taken
+at each step of the same messages):
 
-* thread: Zenoh's channel read by a reader thread of ours (the runtime before
-  issue 29), which queues the sample and wakes the loop with
+* thread: what the runtime does: Zenoh's channel read by a reader thread of
+  ours, which queues the sample and wakes the loop with
   ``call_soon_threadsafe``; the loop decodes.
 * direct: Zenoh's own thread calls us (``Callback(indirect=False)``) and wakes
-  the loop with ``call_soon_threadsafe``.
-* runtime: Zenoh's own thread calls us; the loop is woken with one byte on a
-  socket (`Node._ready`).
+  the loop with ``call_soon_threadsafe``: one thread hop fewer. Tried in the
+  runtime for issue 29 and left: no clear gain in latency on the build machine,
+  and under a flood on a loaded machine it let fewer samples through (Zenoh's
+  one worker thread waits for the GIL per sample; docs/runtime.md).
 
 Stages: *to Python*: the sender's stamp to the first Python line on the
 receiving side; *to loop*: from there to the event loop's wake-up callback;
@@ -62,7 +64,7 @@ from common import robot_config
 ROOT = Path(__file__).resolve().parent.parent
 VARIANTS = ("raw", "raw-fifo", "runtime")
 STAGED = ("thread", "direct")
-"""Earlier designs of the hop, measured with ``--stages`` (see above)."""
+"""Designs of the hop built from the same parts, measured with ``--stages`` (see above)."""
 DEADLINE_S = 30.0
 """A receiver gives up this long after the sender should have finished (lost messages)."""
 
@@ -130,20 +132,20 @@ async def _receive_runtime(cfg, variant: str, count: int, latencies: list[int], 
     from icefloe.schemas import keys
 
     woke = [0]
-    on_wake = Node._on_wake
 
-    def timed_wake(node: Node) -> None:  # when the loop runs the wake-up
-        woke[0] = time.monotonic_ns()
-        on_wake(node)
+    class TimedWake(asyncio.Event):
+        def set(self) -> None:  # the loop runs the wake-up the reader thread asked for
+            woke[0] = time.monotonic_ns()
+            super().set()
 
-    Node._on_wake = timed_wake  # type: ignore[method-assign]
     async with Node("bench-rx", cfg) as node:
         sub = node.subscribe(keys.ODOM_POSE, latest=False, maxsize=count, robot=_robot(variant))
+        sub._wake = TimedWake()
         arrived = [0]
         decode = sub._decode
 
         def timed_decode(raw):  # type: ignore[no-untyped-def]
-            arrived[0] = int(raw.received * 1e9)  # taken by our first Python line, on Zenoh's thread
+            arrived[0] = int(raw.received * 1e9)  # taken by our first Python line, on the reader thread
             return decode(raw)
 
         sub._decode = timed_decode
@@ -158,7 +160,7 @@ async def _receive_runtime(cfg, variant: str, count: int, latencies: list[int], 
 
 async def _receive_staged(cfg, key: str, variant: str, count: int, latencies: list[int],  # type: ignore[no-untyped-def]
                           stages: list[tuple[int, int, int]]) -> None:
-    """The hop as the runtime made it before (see the module's doc), timed at each step."""
+    """The hop as ``variant`` makes it (see the module's doc), timed at each step."""
     from collections import deque
 
     import msgspec
@@ -275,16 +277,23 @@ def _send(config_path: str, variants: list[str], count: int, rate: float, block:
 def _round(config_path: Path, variants: list[str], count: int, rate: float, block: int) -> dict[str, dict]:
     me = [sys.executable, __file__, "--config", str(config_path), "--count", str(count)]
     wait_s = count * len(variants) / rate + DEADLINE_S
+    folder = Path(tempfile.mkdtemp())
     receivers = {}
     for variant in variants:
-        rx = subprocess.Popen([*me, "--role", "rx", "--variants", variant, "--wait", str(wait_s)],
-                              stdout=subprocess.PIPE, text=True)
+        rx = subprocess.Popen([*me, "--role", "rx", "--variants", variant, "--wait", str(wait_s),
+                               "--out", str(folder / f"{variant}.json")], stdout=subprocess.PIPE, text=True)
         receivers[variant] = rx
     for rx in receivers.values():
         assert rx.stdout is not None and rx.stdout.readline().strip() == "ready"
     subprocess.run([*me, "--role", "tx", "--variants", ",".join(variants), "--rate", str(rate),
                     "--block", str(block)], check=True)
-    return {variant: json.loads(rx.communicate(timeout=wait_s + 30)[0]) for variant, rx in receivers.items()}
+    results = {}
+    for variant, rx in receivers.items():
+        rest = rx.communicate(timeout=wait_s + 30)[0].strip()
+        if rest:  # Zenoh's own log lines go to stdout: show them, they are not our results
+            print(f"[{variant} receiver] {rest}", file=sys.stderr)
+        results[variant] = json.loads((folder / f"{variant}.json").read_text())
+    return results
 
 
 def _pct(values: list[int], q: float) -> float:
@@ -294,8 +303,8 @@ def _pct(values: list[int], q: float) -> float:
 
 def costs(n: int = 20000) -> dict[str, float]:
     """What the pieces of the hop cost one thread, µs each, no waiting: decoding a Pose as the
-    runtime does, queueing and taking a sample (lock, deque), a byte through a socket pair
-    (send + recv: the runtime's wake-up) and ``call_soon_threadsafe`` (the earlier one)."""
+    runtime does, queueing and taking a sample (lock, deque), ``call_soon_threadsafe`` (the
+    runtime's wake-up) and a byte through a socket pair (send + recv: a wake-up tried and left)."""
     import socket
     from collections import deque
 
@@ -342,14 +351,15 @@ def main() -> None:
     p.add_argument("--block", type=int, default=100, help="messages a variant gets in one turn")
     p.add_argument("--rounds", type=int, default=3, help="rounds, each with fresh receiver processes")
     p.add_argument("--stages", action="store_true",
-                   help="also measure the earlier designs of the hop (thread, direct) and print the stages")
+                   help="also measure two designs of the hop (thread, direct) and print the stages")
     p.add_argument("--role", choices=["rx", "tx"], help=argparse.SUPPRESS)
     p.add_argument("--variants", help=argparse.SUPPRESS)
     p.add_argument("--wait", type=float, help=argparse.SUPPRESS)
+    p.add_argument("--out", help=argparse.SUPPRESS)
     p.add_argument("--config", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.role == "rx":
-        print(json.dumps(_receive(args.config, args.variants, args.count, args.wait)))
+        Path(args.out).write_text(json.dumps(_receive(args.config, args.variants, args.count, args.wait)))
         return
     if args.role == "tx":
         _send(args.config, args.variants.split(","), args.count, args.rate, args.block)

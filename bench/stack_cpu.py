@@ -146,6 +146,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=20.0, help="length of each window, s")
     p.add_argument("--settle", type=float, default=10.0, help="wait this long once every process is up, s")
+    p.add_argument("--drive", action="store_true",
+                   help="(for older command lines) both windows, standing and driving, are always measured")
     args = p.parse_args()
     config = robot_config(Path(tempfile.mkdtemp()), "cpubench", f"[webapi]\nport = {free_port()}\n")
     icefloe = [sys.executable, "-m", "icefloe.cli"]

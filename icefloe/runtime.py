@@ -17,11 +17,9 @@ What it gives you:
   the robot's router, no multicast), a liveliness token ``alive/<service>``, a
   logger that writes to stderr and to the bus key ``log``. Closing the node
   closes the session, so the process really ends.
-* Typed subscriptions as async iterators. Zenoh's own thread calls us with each
-  sample (`Subscription._on_sample`), which only stores the raw sample and wakes
-  the event loop (``call_soon_threadsafe``): one thread hop, as few as raw Zenoh.
-  Closing waits until Zenoh has let go of that callback, so a program can end
-  while samples stream in. Decoding happens in the loop. Each subscription
+* Typed subscriptions as async iterators. Zenoh hands each sample to a thread of
+  ours (`deliver_on_thread`), which only stores the raw sample and wakes the event
+  loop (``call_soon_threadsafe``). Decoding happens in the loop. Each subscription
   has a queue policy: *latest* (keep only the newest sample: sensor streams) or
   *fifo* (keep up to ``maxsize`` in order, dropping the oldest: commands). Bad
   payloads are dropped with a log line naming the key and the field.
@@ -37,17 +35,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import atexit
 import contextlib
 import json
 import logging
 import os
 import signal
-import socket
 import sys
 import threading
 import time
-import weakref
 from collections import deque
 from collections.abc import Awaitable, Callable, Coroutine, Iterator, Sequence
 from dataclasses import dataclass
@@ -162,14 +157,7 @@ class RawSample:
 
 
 class Subscription(Generic[T]):
-    """An async iterator over the messages of one key expression.
-
-    Zenoh calls `_on_sample` on its own thread (``indirect=False``: no Python thread between
-    Zenoh and the event loop, so a sample crosses one thread hop, the one into the loop; with
-    a reader thread of ours in between it crossed two, and the hop cost 1.5x raw Zenoh's
-    latency: docs/runtime.md). `close` waits until Zenoh has dropped the callback (its
-    ``drop`` runs after the last call has returned), so no Zenoh thread can enter Python
-    after the subscription or its node is closed, and the interpreter may exit at once."""
+    """An async iterator over the messages of one key expression."""
 
     def __init__(
         self,
@@ -190,36 +178,31 @@ class Subscription(Generic[T]):
         self._typed = typed
         self._node = node
         self._decode = decode
+        self._loop = asyncio.get_running_loop()
         self._items: deque[RawSample] = deque(maxlen=1 if latest else maxsize)
         self._lock = threading.Lock()
         self._wake = asyncio.Event()
         self._wake_pending = False
         self._closed = False
-        self._released = threading.Event()
-        """Set by Zenoh when it drops our callback: no call of `_on_sample` is running or to come."""
         self._warn, self._kind = node.limited, node.short(key_expr)
-        callback = zenoh.handlers.Callback(self._on_sample, self._released.set, indirect=False)
-        self._sub = node.session.declare_subscriber(key_expr, callback)
+        self._sub = node.session.declare_subscriber(key_expr, zenoh.handlers.DefaultHandler())
+        self._reader = deliver_on_thread(self._sub.handler, self._on_sample, f"icefloe {key_expr}", node.limited)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Runs on Zenoh's thread, holding the GIL: copy the bytes, queue them, wake the loop
-        # once per batch. Never block, never raise: Zenoh's one worker thread of a service
-        # (SERVICE_ZENOH_RUNTIME) does the process's networking while it is here.
-        try:
-            raw = RawSample(
-                str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.monotonic()
-            )
-            with self._lock:
-                if len(self._items) == self._items.maxlen:
-                    self.skipped += 1
-                self._items.append(raw)
-                if self._wake_pending:
-                    return
-                self._wake_pending = True
-            self._node._ready(self)
-        except Exception as exc:  # one bad sample must not end the subscription (nor flood the log)
-            self._warn.warning(f"deliver {self._kind}", "%s: delivering a sample failed", self.key_expr,
-                               exc_info=exc)
+        # Runs on our reader thread: copy the bytes, queue them, wake the loop once. Never block:
+        # while it waits, Zenoh queues the samples behind (and past 256, holds up the session).
+        raw = RawSample(
+            str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.monotonic()
+        )
+        with self._lock:
+            if len(self._items) == self._items.maxlen:
+                self.skipped += 1
+            self._items.append(raw)
+            if self._wake_pending:
+                return
+            self._wake_pending = True
+        with contextlib.suppress(RuntimeError):  # the loop is closing: nothing to wake
+            self._loop.call_soon_threadsafe(self._wake.set)
 
     def __aiter__(self) -> Subscription[T]:
         return self
@@ -253,17 +236,9 @@ class Subscription(Generic[T]):
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            with contextlib.suppress(zenoh.ZError):  # its session is closed already: nothing to undeclare
-                self._sub.undeclare()
-            self.wait_released()
+            self._sub.undeclare()
+            join_reader(self._reader, self._node.log)
             self._wake.set()
-
-    def wait_released(self) -> None:
-        """Wait (GIL released) until Zenoh has dropped our callback: after `close`, or after the
-        session closed."""
-        if not self._released.wait(READER_JOIN_TIMEOUT):
-            self._node.log.warning("%s: Zenoh still holds its callback %.0f s after the subscription closed",
-                                   self.key_expr, READER_JOIN_TIMEOUT)
 
 
 class Batches(Generic[T]):
@@ -396,24 +371,6 @@ def decode_query(query: zenoh.Query, kind: type[T], key_expr: str) -> T:
     return codec.decode(payload, encoding, kind, key_expr)
 
 
-_OPEN_NODES: weakref.WeakSet[Node] = weakref.WeakSet()
-"""Nodes whose session is open (`Node.__aenter__` adds, `Node.close` removes)."""
-
-
-@atexit.register
-def _close_open_nodes() -> None:
-    """A program that ends without closing its node (a `Robot` never closed): close the sessions
-    now, while the interpreter is still whole, and wait until Zenoh has dropped our callbacks.
-    A Zenoh thread that entered Python after the interpreter began to shut down would abort the
-    process ("FATAL: exception not rethrown") instead of letting it exit."""
-    for node in list(_OPEN_NODES):
-        with contextlib.suppress(Exception):
-            node.session.close()
-        for item in node._closables:
-            if isinstance(item, Subscription):
-                item.wait_released()
-
-
 class Node:
     """One service's connection to the bus. Use as ``async with Node(name, config) as node``."""
 
@@ -443,13 +400,6 @@ class Node:
         # the monotonic clock (hwbridge learns its offset from the robot's clock).
         self._wall0, self._mono0 = time.time_ns(), time.monotonic_ns()
         self._numbering = threading.Lock()
-        # Waking the event loop for the subscriptions (`_ready`, `_on_wake`).
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._wake_r: socket.socket | None = None
-        self._wake_w: socket.socket | None = None
-        self._ready_subs: list[Subscription[Any]] = []
-        self._signalled = False
-        self._ready_lock = threading.Lock()
 
     def key(self, topic: Topic | str) -> str:
         return keys.key(self.robot, topic)
@@ -485,15 +435,6 @@ class Node:
     async def __aenter__(self) -> Node:
         with service_zenoh_pools() if self.one_zenoh_thread else contextlib.nullcontext():
             self.session = await open_session(self.config, mode=self.mode, log=self.log, retry=self.retry)
-        _OPEN_NODES.add(self)
-        self._loop = asyncio.get_running_loop()
-        self._wake_r, self._wake_w = socket.socketpair()
-        self._wake_r.setblocking(False)
-        self._wake_w.setblocking(False)
-        try:
-            self._loop.add_reader(self._wake_r.fileno(), self._on_wake)
-        except NotImplementedError:  # Windows' proactor loop watches no sockets: wake it the usual way
-            self._wake_w.close()
         if self.announce:
             token = self.session.liveliness().declare_token(keys.alive_key(self.robot, self.service))
             self._closables.append(token)
@@ -520,47 +461,9 @@ class Node:
         self._closables.clear()
         if hasattr(self, "session") and not self.session.is_closed():
             self.session.close()
-        _OPEN_NODES.discard(self)
         for reader in self._readers:
             join_reader(reader, self.log)
         self._readers.clear()
-        if self._loop is not None and self._wake_r is not None:
-            with contextlib.suppress(Exception):  # the loop may be closed already
-                self._loop.remove_reader(self._wake_r.fileno())
-        self._loop = None
-        for end in (self._wake_r, self._wake_w):
-            if end is not None:
-                end.close()
-
-    def _ready(self, sub: Subscription[Any]) -> None:
-        """``sub`` has samples for the loop (Zenoh's thread, GIL held). The first subscription
-        ready since the loop last looked wakes it with one byte on a socket: ``send`` lets go of
-        the GIL before the system call, so the loop need not wait for the GIL we hold
-        (``call_soon_threadsafe`` wakes it while we hold it). Where the loop cannot watch a
-        socket (Windows' proactor loop) it is ``call_soon_threadsafe``."""
-        with self._ready_lock:
-            self._ready_subs.append(sub)
-            if self._signalled:
-                return
-            self._signalled = True
-        wake, loop = self._wake_w, self._loop
-        if wake is not None and wake.fileno() >= 0:
-            with contextlib.suppress(OSError):  # closed: nobody to wake
-                wake.send(b"\0")
-        elif loop is not None:
-            with contextlib.suppress(RuntimeError):  # the loop is closing: nothing to wake
-                loop.call_soon_threadsafe(self._on_wake)
-
-    def _on_wake(self) -> None:
-        """In the loop: wake the subscriptions that have samples, all at once."""
-        if self._wake_r is not None:
-            with contextlib.suppress(OSError):
-                self._wake_r.recv(4096)
-        with self._ready_lock:
-            ready, self._ready_subs = self._ready_subs, []
-            self._signalled = False
-        for sub in ready:
-            sub._wake.set()
 
     # ------------------------------------------------------------------ subscribing
 
@@ -764,6 +667,8 @@ def raw_session(config: RobotConfig) -> zenoh.Session:
 def listening(endpoint: str, timeout: float = 1.0) -> bool:
     """Does anything accept a TCP connection at a Zenoh endpoint (``tcp/host:port``, ``tls/...``)?
     True for other kinds of endpoints, which we cannot probe."""
+    import socket
+
     proto, _, address = endpoint.partition("/")
     if proto not in ("tcp", "tls"):
         return True
