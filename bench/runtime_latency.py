@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import os
 import statistics
@@ -102,7 +103,8 @@ def _receive(config_path: str, variant: str, count: int, wait_s: float) -> dict:
             if len(latencies) >= count:
                 break
         give_up.cancel()
-        sub.undeclare()
+        with contextlib.suppress(zenoh.ZError):  # undeclared already, if we gave up
+            sub.undeclare()
         session.close()
     elif variant == "raw":
         session = raw_session(cfg)
