@@ -14,6 +14,7 @@ import math
 import os
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -139,3 +140,48 @@ def test_terminal_shows_unprintable_characters_safely() -> None:
     frame = Frame()
     frame.text(0, 1, t.lines[0][1])
     assert np.array_equal(frame.pixels[0:8, 6:12], font.UNKNOWN_CELL)
+
+
+def changed(status: Status, name: str) -> Status:
+    """``status`` with field ``name`` set to something else that a screen would show differently."""
+    import dataclasses
+
+    other = {
+        "addresses": [("wlan0", "10.0.0.99")],
+        "hostname": "other",
+        "battery": m.Battery(stamp=5, voltage=6.9, current=0.2, state="low"),
+        "wheels": m.Wheels(stamp=5, ticks_left=7, ticks_right=8, speed_left=0.5, speed_right=-0.5),
+        "tick_zero": (3, 4),
+        "loop": None,
+        "alive": ["odometry"],
+        "error": None,
+        "errors": 99,
+        "pose": m.Pose(stamp=5, x=-1.0, y=2.5, theta=1.0),
+    }
+    if name == "terminal":
+        terminal = Terminal()
+        terminal.write("other text")
+        return dataclasses.replace(status, terminal=terminal)
+    return dataclasses.replace(status, **{name: other[name]})
+
+
+@pytest.mark.parametrize("index", range(len(SCREENS)))
+def test_a_screen_renders_again_only_when_what_it_shows_changed(index: int) -> None:
+    """The service renders only when `view` changed: for every screen and every field, an
+    equal view must mean an equal frame, and a sensor repeating its values with a new stamp
+    (a robot standing still) must not change the view."""
+    import dataclasses
+
+    from icefloe.services.oled.screens import view
+
+    base = fixed_status()
+    for name in (f.name for f in dataclasses.fields(Status)):
+        other = changed(base, name)
+        if view(index, other) == view(index, base):
+            assert render(index, other) == render(index, base), (SCREENS[index].name, name)
+        else:
+            assert name in SCREENS[index].reads or name == "battery", (SCREENS[index].name, name)
+    restamped = dataclasses.replace(base, wheels=msgspec.structs.replace(base.wheels, stamp=10**9),
+                                    pose=msgspec.structs.replace(base.pose, stamp=10**9),
+                                    battery=msgspec.structs.replace(base.battery, stamp=10**9))
+    assert view(index, restamped) == view(index, base)

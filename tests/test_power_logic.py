@@ -129,3 +129,47 @@ def test_request_line_needs_its_long_hold() -> None:
 def test_a_level_other_than_0_or_1_is_rejected() -> None:
     with pytest.raises(ValueError, match="0 or 1"):
         HoldDetector(hold_s=0.5).edge(2, 0.0)
+
+
+SCENARIOS = [
+    [(1.000, 0), (1.003, 1), (1.006, 0), (1.010, 1), (1.014, 0), (1.300, 1), (1.305, 0), (2.000, 1),
+     (2.004, 0), (2.008, 1)],
+    [(1.000, 0), (1.004, 1), (1.008, 0), (1.012, 1), (2.000, 0), (2.300, 1)],
+    [(1.0, 0), (1.7, 1), (2.0, 0), (2.6, 1)],
+    [(1.000, 0), (1.003, 1), (1.006, 0), (1.200, 1), (1.204, 0), (1.207, 1), (2.0, 0), (2.01, 1)],
+    [(0.5, 0)],  # held and never released
+]
+
+
+def observe(button: HoldDetector, edges: list[tuple[float, int]], lazy: bool) -> tuple[list, int]:
+    """Presses and settled changes seen when polling every 1 ms, or (``lazy``) only while the
+    detector is not `idle` (as the service does); and how many polls that took."""
+    seen, pending, t, polls = [], sorted(edges), 0.0, 0
+    while t <= 3.0:
+        while pending and pending[0][0] <= t:
+            button.edge(pending.pop(0)[1], t)
+        if not (lazy and button.idle):
+            polls += 1
+            if button.poll(t):
+                seen.append(("press", round(t, 3)))
+            if (level := button.settled_change(t)) is not None:
+                seen.append((level, round(t, 3)))
+        t = round(t + 0.001, 6)
+    return seen, polls
+
+
+@pytest.mark.parametrize("edges", SCENARIOS)
+def test_polling_only_while_not_idle_sees_the_same_presses(edges: list[tuple[float, int]]) -> None:
+    """The power service sleeps while both of its lines are idle (nothing to poll between
+    presses): it must see exactly what polling all the time sees."""
+    always, every = observe(HoldDetector(hold_s=0.5, debounce_s=0.02), edges, lazy=False)
+    lazily, polls = observe(HoldDetector(hold_s=0.5, debounce_s=0.02), edges, lazy=True)
+    assert lazily == always
+    assert polls < every / 2  # and most of the time it did not poll at all
+
+
+def test_a_detector_at_rest_is_idle() -> None:
+    button = HoldDetector(hold_s=0.5, debounce_s=0.02)
+    assert button.idle
+    button.edge(0, 1.0)
+    assert not button.idle

@@ -258,3 +258,23 @@ def test_a_reader_thread_survives_a_failing_delivery_with_a_few_lines(caplog: py
     assert delivered == list(range(1000))
     lines = [r for r in caplog.records if r.name == log.name]
     assert 1 <= len(lines) <= 10 and "delivering a sample failed" in lines[0].getMessage()
+
+
+async def test_latest_gives_the_newest_message_when_asked(robot: Robot) -> None:
+    """`Node.latest`: no Python per sample; `get` decodes the newest only, keeps it until a newer
+    one comes, and drops a bad payload or a wildcard put with a count (the old value stays)."""
+    async with robot.node("a") as a, robot.node("b") as b:
+        latest = b.latest(keys.ODOM_POSE)
+        pub = a.publisher(keys.ODOM_POSE)
+        await settle()
+        assert latest.get() is None
+        for i in range(50):
+            pub.put(m.Pose(stamp=i, x=float(i), y=0.0, theta=0.0))
+        await wait_for(lambda: (p := latest.get()) is not None and p.stamp == 49, timeout=10)
+        assert latest.get().stamp == 49  # nothing newer: the same message again
+        a.session.put(b.key(keys.ODOM_POSE), b"\x81\xa1x\xa4fast", encoding=codec.MSGPACK)
+        await wait_for(lambda: latest.get() is not None and latest.rejected == 1, timeout=10)
+        a.session.put(keys.key("*", keys.ODOM_POSE), codec.encode(m.Pose(stamp=99, x=9.0, y=0.0, theta=0.0)),
+                      encoding=codec.MSGPACK)
+        await wait_for(lambda: latest.get() is not None and latest.rejected == 2, timeout=10)
+        assert latest.value.stamp == 49

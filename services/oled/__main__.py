@@ -21,12 +21,12 @@ from typing import Any
 
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload, NotReachable
-from icefloe.runtime import Node, run
+from icefloe.runtime import Latest, Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
-from .frame import HEIGHT, WIDTH, Frame
-from .screens import ERRORS, SCREENS, USER, Status, render
+from .frame import HEIGHT, WIDTH
+from .screens import ERRORS, SCREENS, USER, Status, render, view
 from .sinks import Sink, open_sink
 from .terminal import MAX_TEXT
 
@@ -60,6 +60,10 @@ class Oled:
         self.status = Status(hostname=socket.gethostname())
         self.index = 0
         """The screen shown (into `SCREENS`)."""
+        self.latest: dict[str, Latest[Any]] = {}
+        """`Status` field -> the topic it follows (`follow`)."""
+        self.renders = 0
+        """Frames rendered (only when what the screen shows changed)."""
 
     # ---------------------------------------------------------------- inputs
 
@@ -116,10 +120,18 @@ class Oled:
 
     # ---------------------------------------------------------------- loops
 
-    async def follow(self, topic: keys.Topic, field: str) -> None:
-        """Keep ``status.<field>`` set to the latest message of ``topic``."""
-        async for msg in self.node.subscribe(topic):
-            setattr(self.status, field, msg)
+    def follow(self, topic: keys.Topic, field: str) -> None:
+        """Keep ``status.<field>`` set to the latest message of ``topic``, read at each frame
+        (`Node.latest`: nothing runs here for the 100 wheel messages a second the screen
+        shows five times a second)."""
+        self.latest[field] = self.node.latest(topic)
+
+    def update(self) -> None:
+        """The newest message of each followed topic into `status`."""
+        for field, latest in self.latest.items():
+            msg = latest.get()
+            if msg is not None:
+                setattr(self.status, field, msg)
 
     async def poll_services(self, period: float = 2.0) -> None:
         prefix = keys.alive_key(self.node.robot, "")
@@ -130,17 +142,26 @@ class Oled:
             await asyncio.sleep(period)
 
     async def show(self, rate_hz: float) -> None:
-        """Render at ``rate_hz``; publish and show a frame when it changed (and every REFRESH_S)."""
+        """Look at ``rate_hz``; render, publish and show a frame only when what the screen shows
+        changed (`screens.view`); publish the same frame again every REFRESH_S for late viewers."""
         pub = self.node.publisher(keys.OLED_FRAME)
-        last: Frame | None = None
+        shown: tuple[object, ...] | None = None
+        message: m.OledFrame | None = None
         last_sent = 0.0
         while True:
-            frame = render(self.index, self.status)
+            self.update()
             now = time.monotonic()
-            if frame != last or now - last_sent >= REFRESH_S:
-                pub.put(m.OledFrame(width=WIDTH, height=HEIGHT, pixels=frame.pack()))
+            seen = view(self.index, self.status)
+            if seen != shown:
+                frame = render(self.index, self.status)
+                self.renders += 1
+                message = m.OledFrame(width=WIDTH, height=HEIGHT, pixels=frame.pack())
+                pub.put(message)
                 await self.sink.show(frame, self.index)
-                last, last_sent = frame, now
+                shown, last_sent = seen, now
+            elif message is not None and now - last_sent >= REFRESH_S:
+                pub.put(message)
+                last_sent = now
             await asyncio.sleep(1.0 / rate_hz)
 
 
@@ -158,10 +179,10 @@ async def main(config: RobotConfig) -> None:
 
         try:
             async with asyncio.TaskGroup() as tasks:
-                tasks.create_task(oled.follow(keys.BATTERY, "battery"))
-                tasks.create_task(oled.follow(keys.WHEELS, "wheels"))
-                tasks.create_task(oled.follow(keys.LOOP, "loop"))
-                tasks.create_task(oled.follow(keys.ODOM_POSE, "pose"))
+                oled.follow(keys.BATTERY, "battery")
+                oled.follow(keys.WHEELS, "wheels")
+                oled.follow(keys.LOOP, "loop")
+                oled.follow(keys.ODOM_POSE, "pose")
                 tasks.create_task(each(keys.LOG, oled.log))
                 tasks.create_task(each(keys.OLED_TEXT, oled.text))
                 tasks.create_task(each(keys.OLED_SCREEN, oled.screen))

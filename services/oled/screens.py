@@ -13,6 +13,8 @@ import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import msgspec
+
 from icefloe.schemas import messages as m
 
 from .frame import COLS, ROWS, Frame
@@ -160,18 +162,20 @@ class Screen:
     render: Callable[[Status], Frame]
     action: str = ""
     """What button 2 does on this screen ("" = nothing)."""
+    reads: tuple[str, ...] = ()
+    """The `Status` fields its `render` reads (see `view`)."""
 
 
 SCREENS: tuple[Screen, ...] = (
-    Screen("network", network),
-    Screen("user", user, "clear"),
-    Screen("battery", battery),
-    Screen("encoders", encoders, "reset"),
-    Screen("motors", motors),
-    Screen("timing", timing),
-    Screen("services", services),
-    Screen("errors", errors, "clear"),
-    Screen("pose", pose, "zero"),
+    Screen("network", network, reads=("hostname", "addresses")),
+    Screen("user", user, "clear", reads=("terminal",)),
+    Screen("battery", battery, reads=("battery",)),
+    Screen("encoders", encoders, "reset", reads=("wheels", "tick_zero")),
+    Screen("motors", motors, reads=("wheels",)),
+    Screen("timing", timing, reads=("loop",)),
+    Screen("services", services, reads=("alive",)),
+    Screen("errors", errors, "clear", reads=("error", "errors")),
+    Screen("pose", pose, "zero", reads=("pose",)),
 )
 """The screens in button-0 order. The error screen is 7, as on the PenguinPi firmware."""
 USER = 1
@@ -182,3 +186,21 @@ def render(index: int, status: Status) -> Frame:
     """The frame of screen ``index``, inverted while the battery is low."""
     frame = SCREENS[index].render(status)
     return frame.inverted() if status.inverted else frame
+
+
+def _shown(value: object) -> object:
+    """What of a `Status` field a screen can show: a message without its stamp (a sensor that
+    repeats the same values with new stamps changes nothing on the screen), lines as a tuple."""
+    if isinstance(value, Terminal):
+        return tuple(value.lines)
+    if isinstance(value, list):
+        return tuple(value)
+    if isinstance(value, msgspec.Struct) and hasattr(value, "stamp"):
+        return msgspec.structs.replace(value, stamp=0)
+    return value
+
+
+def view(index: int, status: Status) -> tuple[object, ...]:
+    """Everything screen ``index`` shows, comparable: while it is equal, `render` gives the same
+    frame, so the service renders only when it changed."""
+    return (index, status.inverted, *(_shown(getattr(status, name)) for name in SCREENS[index].reads))

@@ -84,13 +84,20 @@ async def watch_lines(lines: Lines, power: Power, shutdown: Shutdown,
         power.request_line: (HoldDetector(power.request_hold_s, power.debounce_s), "board request"),
     }
 
+    edge = asyncio.Event()
+
     async def feed() -> None:
         async for line, level, t in lines.edges():
             detectors[line][0].edge(level, t)
+            edge.set()
 
     async def poll() -> None:
-        # Polling every half debounce period is cheap and bounds the reaction delay.
+        # Every half debounce period while a line bounces or is held (it bounds the reaction
+        # delay); between presses nothing runs until the next edge.
         while True:
+            edge.clear()
+            if all(detector.idle for detector, _ in detectors.values()):
+                await edge.wait()
             await asyncio.sleep(power.debounce_s / 2)
             now = lines.clock()
             for detector, reason in detectors.values():

@@ -57,6 +57,12 @@ class HoldDetector:
             return True
         return False
 
+    @property
+    def idle(self) -> bool:
+        """Nothing will change before the next edge: `poll` and `settled_change` would return
+        nothing and change nothing (released and re-armed, or held and its press counted)."""
+        return self.level == self.settled and self._armed == (self.level == 1)
+
     def settled_change(self, now: float) -> int | None:
         """The line's new level once it has kept it for ``debounce_s`` (0: pressed, 1: released),
         reported once per change; None while it bounces or has not changed."""
