@@ -1,0 +1,188 @@
+"""`icefloe doctor` against the simulated robot (real processes, real Zenoh, access control on): a
+healthy robot has no problem line and exits 0; each fault injected is named in one line, exit 1;
+a dead router is reported within bounded time. The robot is shared by the file's tests; each
+test puts back what it broke."""
+
+from __future__ import annotations
+
+import grp
+import os
+import pwd
+import signal
+import socket
+import stat
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import msgspec
+import pytest
+from conftest import Robot, free_port
+
+from icefloe import config as config_mod
+from icefloe.cli import doctor as doc
+
+ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
+SERVICES = ["sim", "hwbridge", "power", "camera"]
+NOTES = ("not checked: ", "OK: ")
+"""Lines of a report that are not problems."""
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
+    r = Robot(tmp_path_factory.mktemp("doctor"), f"services = {SERVICES}\n", access_control=True)
+    try:
+        for service in SERVICES:
+            r.start(service)
+        until(r, lambda res: res.returncode == 0, "a healthy robot", timeout=90)
+        yield r
+    finally:
+        r.close()
+
+
+def doctor(*args: str, timeout: float = 30) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*ICEFLOE, "doctor", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def problems(res: subprocess.CompletedProcess[str]) -> list[str]:
+    return [line for line in res.stdout.splitlines() if not line.startswith(NOTES) and " problem" not in line]
+
+
+def until(robot: Robot, done: Callable[[subprocess.CompletedProcess[str]], bool], what: str,
+          timeout: float = 40) -> subprocess.CompletedProcess[str]:
+    """Run the doctor on ``robot`` until its report shows ``done`` (a fault takes a moment to show)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        res = doctor(str(robot.config_path))
+        if done(res):
+            return res
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no report of {what} within {timeout} s; the last:\n{res.stdout}{res.stderr}")
+
+
+def named(start: str) -> Callable[[subprocess.CompletedProcess[str]], bool]:
+    return lambda res: res.returncode == 1 and any(line.startswith(start) for line in problems(res))
+
+
+def test_healthy_robot_has_no_problem_on_it_or_from_a_laptop(robot: Robot) -> None:
+    res = until(robot, lambda res: res.returncode == 0, "a healthy robot")
+    assert problems(res) == [] and res.stderr == ""
+    summary = res.stdout.splitlines()[-1]
+    assert summary.startswith(f"OK: robot {robot.name}: 5 of 5 alive") and "camera delivering" in summary, res.stdout
+    assert "not checked: devices: a simulated board" in res.stdout  # no device to look at
+
+    # From a laptop: the robot's config for its service list, its router's address, no credentials
+    # (the read-only guest is all doctor needs). The local checks are skipped, saying so.
+    start = time.monotonic()
+    res = doctor(str(robot.config_path), "--connect", f"tcp/127.0.0.1:{robot.port}")
+    assert res.returncode == 0 and problems(res) == [], res.stdout + res.stderr
+    assert "not checked: devices and credentials file: from a laptop" in res.stdout
+    assert time.monotonic() - start < 15
+
+
+def test_a_stopped_service_is_named(robot: Robot) -> None:
+    power = next(p for p in robot.procs if p.name == "power" and p.alive())
+    power.signal(signal.SIGKILL)
+    try:
+        res = until(robot, named("power: not running"), "power stopped")
+        assert "the output of `icefloe up` says why" in problems(res)[0]
+        assert len(problems(res)) == 1, res.stdout  # the battery is not also blamed: its service is gone
+    finally:
+        power.stop()
+        robot.start("power")
+        until(robot, lambda res: res.returncode == 0, "power back")
+
+
+def test_credentials_readable_by_others_owned_by_another_or_missing_are_named(robot: Robot) -> None:
+    path = robot.credentials_path
+    owner = doc.services_user()  # icefloe where that user exists, else whoever runs the services
+    nobody = pwd.getpwnam("nobody")
+    os.chown(path, owner.pw_uid, owner.pw_gid)
+    try:
+        path.chmod(0o644)
+        res = doctor(str(robot.config_path))
+        assert res.returncode == 1 and problems(res) == [
+            f"credentials: {path} may be read by others (-rw-r--r-- {owner.pw_name}:{grp.getgrgid(owner.pw_gid)[0]}):"
+            f" sudo chmod 600 {path}"], res.stdout
+        path.chmod(0o600)
+        os.chown(path, nobody.pw_uid, nobody.pw_gid)
+        res = doctor(str(robot.config_path))
+        assert res.returncode == 1 and problems(res) == [
+            f"credentials: {path} belongs to nobody:{grp.getgrgid(nobody.pw_gid)[0]}, not to {owner.pw_name}, "
+            f"who runs the services: sudo chown {owner.pw_name}: {path}"], res.stdout
+        path.rename(path.with_suffix(".away"))
+        res = doctor(str(robot.config_path))
+        assert res.returncode == 1 and problems(res) == [
+            f"credentials: {path} is missing, so nobody may drive the robot: "
+            f"icefloe credentials {robot.config_path} makes it"], res.stdout
+    finally:
+        if not path.exists():
+            path.with_suffix(".away").rename(path)
+        os.chown(path, owner.pw_uid, owner.pw_gid)
+        path.chmod(0o600)
+
+
+def test_the_board_unplugged_is_named(robot: Robot) -> None:
+    sim = next(p for p in robot.procs if p.name == "sim")
+    sim.signal(signal.SIGSTOP)  # the board stops answering, its pseudo-terminal stays
+    try:
+        res = until(robot, named("board: no reply from"), "the board's silence")
+        line = next(p for p in problems(res) if p.startswith("board:"))
+        assert f"{robot.config.board.serial_port}" in line and "is the simulator" in line, line
+    finally:
+        sim.signal(signal.SIGCONT)
+    until(robot, lambda res: not any(p.startswith("board:") for p in problems(res)), "the board back")
+
+
+@pytest.mark.parametrize("listener", [False, True], ids=["nothing-listens", "silent-listener"])
+def test_an_unreachable_router_is_said_in_one_line_in_bounded_time(listener: bool, tmp_path: Path) -> None:
+    with socket.socket() as sock:
+        if listener:  # accepts TCP connections and never says a word: a hung router
+            sock.bind(("127.0.0.1", 0))
+            sock.listen(8)
+        port = sock.getsockname()[1] if listener else free_port()
+        start = time.monotonic()
+        res = doctor("sim", "--connect", f"tcp/127.0.0.1:{port}")
+        took = time.monotonic() - start
+    assert res.returncode == 1 and len(problems(res)) == 1, res.stdout + res.stderr
+    line = problems(res)[0]
+    assert line.startswith("router: "), line
+    assert ("accepts connections but did not answer" if listener else "nothing listens there") in line, line
+    assert took < doc.BUDGET_S + 6, took
+
+
+# ---------------------------------------------------------------------- the local checks, alone
+
+
+def stat_of(mode: int, uid: int, gid: int) -> os.stat_result:
+    return os.stat_result((mode, 0, 0, 1, uid, gid, 0, 0, 0, 0))
+
+
+def test_device_permissions_as_the_kernel_decides() -> None:
+    nobody = pwd.getpwnam("nobody")
+    chr_ = stat.S_IFCHR
+    assert doc.may_use(stat_of(chr_ | 0o660, nobody.pw_uid, 0), nobody)
+    assert not doc.may_use(stat_of(chr_ | 0o460, nobody.pw_uid, nobody.pw_gid), nobody)  # owner bits rule
+    assert doc.may_use(stat_of(chr_ | 0o060, 0, nobody.pw_gid), nobody)  # its own group
+    assert not doc.may_use(stat_of(chr_ | 0o660, 0, 0), nobody)
+    assert doc.may_use(stat_of(chr_ | 0o666, 0, 0), nobody)
+    assert doc.may_use(stat_of(chr_ | 0o000, 0, 0), pwd.getpwuid(0))
+
+
+def test_missing_and_wrong_devices_are_named(tmp_path: Path) -> None:
+    plain = tmp_path / "serial0"
+    plain.write_text("")
+    cfg = config_mod.load("penguin1", credentials=False)
+    for port, expected in ((tmp_path / "none", "does not exist: is the serial port on"),
+                           (plain, "is not a device")):
+        board = msgspec.structs.replace(cfg.board, serial_port=str(port))
+        report = doc.Report()
+        doc.check_devices(msgspec.structs.replace(cfg, board=board), pwd.getpwnam("nobody"), report)
+        assert report.problems and report.problems[0].startswith(f"board: {port} ") and expected in \
+            report.problems[0], report.problems
+    board = msgspec.structs.replace(cfg.board, serial_port="/dev/null")  # crw-rw-rw-: anyone may
+    report = doc.Report()
+    doc.check_devices(msgspec.structs.replace(cfg, board=board), pwd.getpwnam("nobody"), report)
+    assert report.problems == []
