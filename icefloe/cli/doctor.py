@@ -44,7 +44,7 @@ from ..schemas import messages as m
 from .bus import robot_of
 from .common import Done, add_bus_arguments, bus_config, check_robot, cli_node, config_names, drain
 
-BUDGET_S = 8.0
+BUDGET_S = 7.0
 """The bus checks give up after this long (Python's start and the local checks come on top)."""
 LISTEN_S = 2.5
 """How long to listen for ``hw/loop`` (1 Hz: two reports), the battery and the camera."""
@@ -52,6 +52,8 @@ SANE_NS = 1_704_067_200 * 10**9
 """2024-01-01: a clock before this has not been set (a Pi has no clock battery: 1970 until NTP)."""
 SKEW_S = 2.0
 """The robot's stamps may differ from this machine's clock by this much (and the bus's delay)."""
+WAIT_ROUND_S = 1.0
+"""With ``--wait``: the pause between two rounds of checks."""
 ERROR_SHARE = 0.01
 """Link errors above this share of the exchanges are a problem (a few stray ones are not)."""
 
@@ -448,9 +450,15 @@ def doctor(args: argparse.Namespace) -> int:
     config = doctor_config(args)
     robot = robot_of(args, config)
     remote = bool(args.connect or args.credentials)
-    report = Report()
-    local_checks(args, config, remote, report)
-    if not bounded(config, robot, remote, report):
+    give_up = time.monotonic() + args.wait
+    while True:
+        report = Report()
+        local_checks(args, config, remote, report)
+        answered = bounded(config, robot, remote, report)
+        if not report.problems or not answered or time.monotonic() + WAIT_ROUND_S > give_up:
+            break
+        time.sleep(WAIT_ROUND_S)  # --wait: a robot still starting (after a reboot, an install)
+    if not answered:
         report.problems.append(unanswered(config, report.stage))
         status = show(report, robot)
         sys.stdout.flush()
@@ -478,6 +486,9 @@ def register(verbs: argparse._SubParsersAction) -> None:
     p = verbs.add_parser("doctor", help=help_, description=help_ + ". One line per problem, naming its fix; "
                          "exit status 1 on any; at most about 10 s, even when the robot is dead.")
     add_bus_arguments(p)
+    p.add_argument("--wait", type=float, default=0.0, metavar="S",
+                   help="check again until the robot is healthy or S seconds have passed (a robot still "
+                        "starting, after a reboot); the report is the last round's (default 0: once)")
     action = p.add_argument("robot_config", nargs="?", metavar="ROBOT",
                             help="robot config: a name (penguin1, sim) or a path to a .toml file (as --config)")
     action.completer = config_names  # type: ignore[attr-defined]
