@@ -145,6 +145,8 @@ class Action:
     """For a command: if it fails, print this one line and go on (e.g. no udevd in a container)."""
     on_change: Callable[[], None] | None = field(default=None, compare=False)
     """Called when doing it changed something (a new unit file: restart the units)."""
+    when: Callable[[], bool] | None = field(default=None, compare=False)
+    """Do it only if this says so when its turn comes (reload udev only if its rules changed)."""
 
     def describe(self) -> str:
         if self.step is not None:
@@ -166,15 +168,19 @@ class Action:
         return changed
 
     def _do(self, manifest: Manifest) -> bool:
+        if self.when is not None and not self.when():
+            return False
         if self.step is not None:
             return self.step(manifest)
         if self.ensure_lines:
             assert self.path is not None
             return ensure_lines(self.path, self.ensure_lines, manifest)
         if self.path is not None:
-            return write_file(self.path, self.content, self.mode, manifest)
+            changed = write_file(self.path, self.content, self.mode, manifest)
+            print(f"  {'wrote' if changed else 'unchanged:'} {self.path}", flush=True)
+            return changed
         try:
-            subprocess.run(self.command, check=True)
+            run(*self.command)
         except (subprocess.CalledProcessError, FileNotFoundError):
             if not self.tolerant:
                 raise
@@ -234,9 +240,17 @@ def edit_cmdline(path: Path, cpu: int, manifest: Manifest) -> bool:
     return True
 
 
-def run(*command: str | os.PathLike[str], **kwargs: object) -> None:
+def run(*command: str | os.PathLike[str], quiet: bool = False, **kwargs: object) -> None:
+    """Run a command, saying so; ``quiet``: its output only if it fails (apt's and pip's progress)."""
     print(f"  run: {shlex.join(map(str, command))}", flush=True)
-    subprocess.run([os.fspath(c) for c in command], check=True, **kwargs)  # type: ignore[call-overload]
+    if not quiet:
+        subprocess.run([os.fspath(c) for c in command], check=True, **kwargs)  # type: ignore[call-overload]
+        return
+    res = subprocess.run([os.fspath(c) for c in command], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                         text=True, **kwargs)  # type: ignore[call-overload]
+    if res.returncode:
+        print("".join(res.stdout.splitlines(keepends=True)[-30:]), end="", flush=True)
+        raise subprocess.CalledProcessError(res.returncode, command)
 
 
 def systemd_running() -> bool:
@@ -283,7 +297,8 @@ def install_apt(required: tuple[str, ...], wanted: dict[str, str], manifest: Man
     if not missing:
         return False
     env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    run("apt-get", "update", "-qq", env=env)
+    if any(p in required or apt_known(p) for p in missing):  # (a reinstall on plain Debian: no update)
+        run("apt-get", "update", "-qq", env=env, quiet=True)
     install = [p for p in missing if p in required]
     for package in (p for p in missing if p in wanted):
         if apt_known(package):
@@ -292,7 +307,7 @@ def install_apt(required: tuple[str, ...], wanted: dict[str, str], manifest: Man
             print(f"  {package}: apt does not know it here (not Raspberry Pi OS?): {wanted[package]} "
                   "will not start on this machine", flush=True)
     if install:
-        run("apt-get", "install", "-y", "-qq", *install, env=env)
+        run("apt-get", "install", "-y", "-qq", *install, env=env, quiet=True)
         for package in install:
             manifest.add("apt", package)
     return bool(install)
@@ -327,12 +342,16 @@ def source_digest(source: str) -> str:
     return h.hexdigest()[:16]
 
 
+def base_python() -> str:
+    """The system's python3 (whose site packages apt fills), not the venv's this runs in."""
+    return getattr(sys, "_base_executable", sys.executable)
+
+
 def install_venv(source: str, extras: str, manifest: Manifest) -> bool:
     """`VENV` with icefloe[extras] from ``source`` (a checkout, a wheel, a requirement), once per source."""
     changed = make_dir(PREFIX, manifest, kind="tree")
     if not PYTHON.exists():
-        base = getattr(sys, "_base_executable", sys.executable)  # the system's python3, not a venv's
-        run(base, "-m", "venv", "--system-site-packages", VENV)
+        run(base_python(), "-m", "venv", "--system-site-packages", VENV)
         changed = True
     stamp = VENV / f".icefloe-{extras}-{source_digest(source)}"
     if stamp.exists():
@@ -353,7 +372,7 @@ def install_venv(source: str, extras: str, manifest: Manifest) -> bool:
                     shutil.copy2(src, Path(target) / part)
         # a checkout or a wheel file get the extras; a requirement (a name, a URL) is the caller's to write
         spec = f"{target}[{extras}]" if Path(source).exists() else source
-        run(PYTHON, "-m", "pip", "install", "--quiet", "--no-warn-script-location", "--upgrade", spec)
+        run(PYTHON, "-m", "pip", "install", "--no-warn-script-location", "--upgrade", spec, quiet=True)
     for old in VENV.glob(".icefloe-*"):
         old.unlink()
     stamp.touch()
@@ -463,6 +482,14 @@ def copy_file(src: Path, dest: Path, manifest: Manifest) -> bool:
     return write_file(dest, src.read_text(), 0o644, manifest)
 
 
+def make_runtime_dir(path: Path, manifest: Manifest) -> bool:
+    if path.is_dir():
+        return False
+    run("systemd-tmpfiles", "--create", TMPFILES)
+    manifest.add("tree", path)  # ours: made by this install (removed with what the services left in it)
+    return True
+
+
 def check_as_user(config_path: Path) -> bool:
     """The services' user reads the config, the files it extends, and icefloe itself, as the units will."""
     run("runuser", "-u", USER, "--", PYTHON, "-m", "icefloe.cli", "config", config_path,
@@ -520,6 +547,7 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
     required, wanted = apt_packages(config)
     want = "".join(f"\n  and, where apt knows it: {p} ({why})" for p, why in wanted.items())
     restart = threading.Event()  # a unit file or icefloe itself changed: (re)start the units
+    udev = threading.Event()  # the rules changed: reload them
     plan = [
         Action("system packages: the real-time test tool, GPIO and I2C tools, venv"
                + (", and what the config needs" if wanted else ""),
@@ -527,7 +555,7 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
                detail=f"apt-get install {' '.join(required)} (unless installed){want}"),
         Action(f"icefloe in its own venv, readable by {USER} (system site packages: apt's picamera2, spidev)",
                step=lambda m: install_venv(source, o.extras, m), on_change=restart.set,
-               detail=f"{sys.executable} -m venv --system-site-packages {VENV}\n"
+               detail=f"{base_python()} -m venv --system-site-packages {VENV}\n"
                       f"{PYTHON} -m pip install '{source}[{o.extras}]' (a copy; not editable)\n"
                       f"skipped when {VENV}/.icefloe-{o.extras}-<digest of the source> exists"),
     ]
@@ -544,8 +572,8 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
                     detail=f"copy {src} to {dest} (mode 644)") for src, dest in copies.items()]
     plan += [
         Action("device permissions for the serial port, SPI, I2C and GPIO",
-               path=UDEV_RULES_PATH, content=UDEV_RULES),
-        Action("reload udev rules", ("udevadm", "control", "--reload-rules"),
+               path=UDEV_RULES_PATH, content=UDEV_RULES, on_change=udev.set),
+        Action("reload udev rules (if they changed)", ("udevadm", "control", "--reload-rules"), when=udev.is_set,
                tolerant="udev is not running here (a container?): the rules apply from the next boot"),
     ]
     if o.boot_config:
@@ -562,7 +590,8 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
         Action(f"the runtime folder {config.runtime_dir} for the services' sockets, at every boot, "
                f"private to {USER}",
                path=TMPFILES, content=f"d {config.runtime_dir} 0700 {USER} {USER} -\n"),
-        Action("create it now", ("systemd-tmpfiles", "--create", str(TMPFILES))),
+        Action("create it now", step=lambda m: make_runtime_dir(config.runtime_dir, m),
+               detail=f"run: systemd-tmpfiles --create {TMPFILES} (unless {config.runtime_dir} exists)"),
     ]
     if config.zenoh.access_control and config.zenoh.credentials:
         plan.append(Action(f"this robot's credentials (made once, private to {USER}, never printed)",
@@ -623,7 +652,8 @@ def remove_plan(manifest: Manifest, purge: bool = False) -> list[Action]:
         plan.append(Action(f"remove the group {group}", ("groupdel", group),
                            tolerant=f"could not remove the group {group} (gone already?)"))
     for (path,) in manifest.of("tree"):
-        plan.append(Action(f"remove {path} (the venv, this manifest)", ("rm", "-rf", path)))
+        plan.append(Action(f"remove {path}" + (" (the venv, this manifest)" if Path(path) == PREFIX else ""),
+                           ("rm", "-rf", path)))
     for (path,) in reversed(manifest.of("dir")):
         plan.append(Action(f"remove the folder {path} if empty", step=lambda m, path=path: remove_dir(Path(path)),
                            detail=f"rmdir {path} (if empty)"))
@@ -702,7 +732,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {MANIFEST} lists nothing: no install to remove here")
     changed = 0
     for action in plan:
-        print(action.describe(), end="", flush=True)
+        # the dry run says what each step would do; a real one says what it does as it does it
+        print(action.describe().rstrip("\n") if args.dry_run else f"* {action.what}", flush=True)
         if not args.dry_run:
             changed += action.do(manifest)
     if args.dry_run:
