@@ -87,12 +87,14 @@ def installed(config: RobotConfig) -> bool:
     return config.board.backend == "hardware"
 
 
+def unit(service: str) -> str:
+    """The systemd unit of a service on an installed robot (deploy/systemd)."""
+    return f"icefloe-{service}" if service in ("router", "hwbridge") else f"icefloe@{service}"
+
+
 def logs(config: RobotConfig, service: str) -> str:
     """Where a service's log is: its systemd unit's journal, or `icefloe up`'s output."""
-    if not installed(config):
-        return "the output of `icefloe up` says why"
-    unit = f"icefloe-{service}" if service in ("router", "hwbridge") else f"icefloe@{service}"
-    return f"journalctl -u {unit}"
+    return f"journalctl -u {unit(service)}" if installed(config) else "the output of `icefloe up` says why"
 
 
 def doctor_config(args: argparse.Namespace) -> RobotConfig:
@@ -304,7 +306,7 @@ async def bus_checks(config: RobotConfig, robot: str, remote: bool, report: Repo
         return
     missing = [s for s in expected if s not in alive]
     for service in missing:
-        fix = f"sudo systemctl restart {logs(config, service).split()[-1]}; " if installed(config) else ""
+        fix = f"sudo systemctl restart {unit(service)}; " if installed(config) else ""
         report.problems.append(f"{service}: not running (no alive/{service} token): {fix}{logs(config, service)}")
     report.facts.append(f"{len(expected) - len(missing)} of {len(expected)} alive (the router and "
                         f"{', '.join(config.services)})")
