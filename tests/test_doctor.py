@@ -283,3 +283,12 @@ def test_link_errors_real_time_battery_and_clock_are_named_from_what_the_robot_p
     report = doc.Report()
     doc.check_stamps(doc.Heard(loops=[(loop(0, stamp=now - 30 * 10**9)[0], now)]), False, report)
     assert report.problems == []  # on the robot its stamps and this clock are one clock (a slow delivery)
+
+
+@pytest.mark.parametrize("name", ["*", "**", "a/b", "$*"])
+def test_a_wildcard_robot_is_refused_in_one_line(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    from icefloe.cli import main
+
+    assert main(["doctor", "--robot", name, "--connect", "tcp/127.0.0.1:1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"icefloe: --robot {name!r}: doctor checks one robot") and err.count("\n") == 1, err

@@ -37,7 +37,7 @@ import msgspec
 from .. import config as config_mod
 from ..config import RobotConfig
 from ..deploy import USER as SERVICES_USER
-from ..errors import ConfigError, NotReachable
+from ..errors import ConfigError, IcefloeError, NotReachable
 from ..runtime import listening, run_async
 from ..schemas import keys
 from ..schemas import messages as m
@@ -451,6 +451,8 @@ def unanswered(config: RobotConfig, stage: str) -> str:
 def doctor(args: argparse.Namespace) -> int:
     config = doctor_config(args)
     robot = robot_of(args, config)
+    if not keys.is_concrete(robot) or "/" in robot:
+        raise IcefloeError(f"--robot {robot!r}: doctor checks one robot, by its name (`icefloe status` lists them)")
     remote = bool(args.connect or args.credentials)
     give_up = time.monotonic() + args.wait
     while True:
