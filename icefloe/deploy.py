@@ -465,6 +465,7 @@ def ensure_credentials(config: RobotConfig, host: str, manifest: Manifest) -> bo
     port = config.zenoh.listen[0].rsplit(":", 1)[-1] if config.zenoh.listen else "7447"
     made_dir = make_dir(path.parent, manifest)
     _, created = credentials_mod.make(path, config.name, [f"tcp/{host}:{port}"] if host else [])
+    print(f"  {'made' if created else 'kept'} {path}", flush=True)
     if created:
         manifest.add("credentials", path)
     st = path.stat()
@@ -478,8 +479,11 @@ def ensure_credentials(config: RobotConfig, host: str, manifest: Manifest) -> bo
 
 def copy_file(src: Path, dest: Path, manifest: Manifest) -> bool:
     if src.resolve() == dest.resolve():
-        return False  # the config is at its place already (the name resolved to /etc/icefloe/robots/)
-    return write_file(dest, src.read_text(), 0o644, manifest)
+        print(f"  {dest} is the config this install was given", flush=True)
+        return False  # the name resolved to /etc/icefloe/robots/: edited there, kept as it is
+    changed = write_file(dest, src.read_text(), 0o644, manifest)
+    print(f"  {'wrote' if changed else 'unchanged:'} {dest}", flush=True)
+    return changed
 
 
 def make_runtime_dir(path: Path, manifest: Manifest) -> bool:
@@ -497,28 +501,31 @@ def check_as_user(config_path: Path) -> bool:
     return False
 
 
-def enable_units(names: list[str], changed_units: bool, manifest: Manifest) -> bool:
+def enable_units(names: list[str], changed: bool, manifest: Manifest) -> bool:
+    """Enable the units and start the robot; restart it when a unit or icefloe itself ``changed``.
+
+    Started is judged by ``icefloe.target`` alone: a service that cannot start here (the camera
+    without picamera2, exit 2) stays failed, and installing again must not count that as a change.
+    """
+    for name in names:
+        manifest.add("unit", name)
+    enabled = subprocess.run(["systemctl", "is-enabled", "--quiet", *names]).returncode == 0
     if not systemd_running():
         # An image or a container without systemd as PID 1: enable (links), start at the next boot.
-        enabled = subprocess.run(["systemctl", "is-enabled", "--quiet", *names]).returncode == 0
         if not enabled:
             run("systemctl", "enable", *names)
         print("  systemd is not running here: the units start at the next boot", flush=True)
-        for name in names:
-            manifest.add("unit", name)
         return not enabled
-    if changed_units:
+    if changed:
         run("systemctl", "daemon-reload")
-    enabled = subprocess.run(["systemctl", "is-enabled", "--quiet", *names]).returncode == 0
-    active = subprocess.run(["systemctl", "is-active", "--quiet", *names]).returncode == 0
-    if changed_units:
+    if not enabled:
         run("systemctl", "enable", *names)
-        run("systemctl", "restart", *names)  # new units, or a new icefloe: run it
-    elif not (enabled and active):
-        run("systemctl", "enable", "--now", *names)
-    for name in names:
-        manifest.add("unit", name)
-    return changed_units or not (enabled and active)
+    active = subprocess.run(["systemctl", "is-active", "--quiet", "icefloe.target"]).returncode == 0
+    if changed and active:
+        run("systemctl", "restart", "icefloe.target")  # every unit is PartOf it: all of them restart
+    elif not active:
+        run("systemctl", "start", "icefloe.target")  # it wants every enabled unit
+    return changed or not enabled or not active
 
 
 # ---------------------------------------------------------------------- the plans
@@ -537,10 +544,7 @@ class Options:
 
 def install_plan(config: RobotConfig, config_path: Path, options: Options | None = None) -> list[Action]:
     o = options or Options()
-    source = o.source or str(checkout() or "")
-    if not source:
-        raise ConfigError("icefloe here is not a checkout: say what to install with --source "
-                          "(a checkout, a wheel file, or a pip requirement)")
+    source = o.source or str(checkout() or "")  # "": main() refuses to install without one
     installed = ROBOTS / f"{config.name}.toml"
     copies = config_files(config_path, config.name)
     cpu = rt_cpu(config)
@@ -556,7 +560,10 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
         Action(f"icefloe in its own venv, readable by {USER} (system site packages: apt's picamera2, spidev)",
                step=lambda m: install_venv(source, o.extras, m), on_change=restart.set,
                detail=f"{base_python()} -m venv --system-site-packages {VENV}\n"
-                      f"{PYTHON} -m pip install '{source}[{o.extras}]' (a copy; not editable)\n"
+                      f"{PYTHON} -m pip install "
+                      + (f"'{source}[{o.extras}]' (a copy; not editable)\n" if source else
+                         "<--source: this icefloe is not a checkout>\n")
+                      +
                       f"skipped when {VENV}/.icefloe-{o.extras}-<digest of the source> exists"),
     ]
     plan += [Action(f"group {g}", step=lambda m, g=g: ensure_group(g, m),
@@ -606,9 +613,9 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
     enable = unit_names(config)
     plan.append(Action(f"enable and start: {' '.join(enable)}",
                        step=lambda m: enable_units(enable, restart.is_set(), m),
-                       detail=f"run: systemctl daemon-reload\nrun: systemctl enable --now {' '.join(enable)}\n"
-                              "(restarted when a unit or icefloe changed; enabled only, where systemd "
-                              "is not running)"))
+                       detail=f"run: systemctl daemon-reload\nrun: systemctl enable {' '.join(enable)}\n"
+                              "run: systemctl start icefloe.target (restart, when a unit or icefloe changed; "
+                              "where systemd is not running, only enabled)"))
     return plan
 
 
@@ -715,6 +722,9 @@ def main(argv: list[str] | None = None) -> int:
             if not args.no_boot_config and not args.dry_run and not BOOT_CONFIG.exists():
                 raise ConfigError(f"{BOOT_CONFIG}: no such file (not a Raspberry Pi?): "
                                   "--no-boot-config installs without the boot config")
+            if not args.dry_run and not (args.source or checkout()):
+                raise ConfigError("this icefloe is not a checkout: say what to put into "
+                                  f"{VENV} with --source (a wheel file, a pip requirement, a checkout)")
             plan = install_plan(cfg, path, Options(args.host, not args.no_boot_config, args.source))
             manifest = Manifest.load() if MANIFEST.exists() else Manifest()
         else:
