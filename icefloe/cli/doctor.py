@@ -335,6 +335,8 @@ def check_board(config: RobotConfig, heard: Heard, report: Report) -> None:
                                f"{last.timeouts} timeouts since start): {cause} ({logs(config, 'hwbridge')})")
         return
     errors = last.link_errors - first.link_errors
+    if b.backend != "hardware":  # the simulator late on a busy machine is no fault of a cable: corruption only
+        errors = sum(getattr(last, k) - getattr(first, k) for k in ("crc_errors", "garbage_bytes", "unmatched"))
     seconds = max((last.stamp - first.stamp) / 1e9, 1e-3)
     exchanges = last.link_rate * seconds
     if len(heard.loops) >= 2 and errors > max(2.0, ERROR_SHARE * exchanges):
