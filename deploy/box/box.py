@@ -479,8 +479,8 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
     (state.root / "etc/pip.conf").write_text(f"[global]\ncache-dir = {BOX_PIP}\nfind-links = {BOX_WHEELS}\n")
     (state.root / "etc/apt/apt.conf.d/99icefloe-box").write_text('Binary::apt::APT::Keep-Downloaded-Packages "true";\n')
     # Raspberry Pi OS names the machine in /etc/hosts (sudo looks its name up); so does the box
-    hosts = state.root / "etc/hosts"
-    hosts.write_text(hosts.read_text() + f"127.0.1.1\traspberrypi {args.name}\n")
+    (state.root / "etc/hosts").write_text(f"127.0.0.1\tlocalhost\n::1\t\tlocalhost ip6-localhost ip6-loopback\n"
+                                          f"127.0.1.1\traspberrypi {args.name}\n")
     bundle = state.root / "var/tmp/icefloe.bundle"
     r = subprocess.run(["git", "-C", str(args.repo), "bundle", "create", str(bundle), args.rev],
                        capture_output=True, text=True)
