@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -277,6 +278,38 @@ def test_5_camera_without_picamera2_says_the_apt_package_and_stays_down(box: Box
     assert camera["NRestarts"] == "0"
     log = box.run("journalctl -b -u icefloe@camera --no-pager -o cat | grep -v '^icefloe@' | grep picamera2").stdout
     assert "python3-picamera2" in log and len(log.strip().splitlines()) == 1, log
+
+
+DOCTOR = f"/opt/icefloe/venv/bin/icefloe doctor /etc/icefloe/robots/{ROBOT}.toml"
+"""`icefloe doctor` as the TA runs it on the robot (as pi: the read-only guest on the bus)."""
+
+
+def _problems(box: Box, wait: float = 0) -> list[str]:
+    """doctor's problem lines, but the camera's (none in the box: check 5)."""
+    r = box.run(f"{DOCTOR} --wait {wait:g}", user="pi", timeout=120, check=False)
+    lines = [line for line in r.stdout.splitlines()
+             if line and not line.startswith(("OK:", "not checked:")) and not re.match(r"\d+ problems? on robot ", line)]
+    return [line for line in lines if "camera" not in line]
+
+
+def test_6_doctor_is_clean_and_names_each_injected_fault(box: Box) -> None:
+    assert _problems(box, wait=30) == []
+    box.run("systemctl stop icefloe@odometry")
+    try:
+        assert any("odometry" in line for line in _problems(box)), "a stopped service"
+    finally:
+        box.run("systemctl start icefloe@odometry")
+    box.board("unplug")
+    try:
+        assert any("serial0" in line or "board" in line for line in _problems(box)), "the board unplugged"
+    finally:
+        box.board("plug")
+    box.run(f"chmod 0644 /etc/icefloe/{ROBOT}.credentials")
+    try:
+        assert any("credentials" in line for line in _problems(box)), "credentials readable by all"
+    finally:
+        box.run(f"chmod 0600 /etc/icefloe/{ROBOT}.credentials")
+    assert _problems(box, wait=30) == []
 
 
 def test_7_down_removes_everything_and_installing_again_works(box: Box) -> None:
