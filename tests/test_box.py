@@ -287,8 +287,9 @@ DOCTOR = f"/opt/icefloe/venv/bin/icefloe doctor /etc/icefloe/robots/{ROBOT}.toml
 def _problems(box: Box, wait: float = 0) -> list[str]:
     """doctor's problem lines, but the camera's (none in the box: check 5)."""
     r = box.run(f"{DOCTOR} --wait {wait:g}", user="pi", timeout=120, check=False)
+    summary = re.compile(r"\d+ problems? on robot ")
     lines = [line for line in r.stdout.splitlines()
-             if line and not line.startswith(("OK:", "not checked:")) and not re.match(r"\d+ problems? on robot ", line)]
+             if line and not line.startswith(("OK:", "not checked:")) and not summary.match(line)]
     return [line for line in lines if "camera" not in line]
 
 
