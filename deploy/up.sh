@@ -30,13 +30,16 @@ done
 
 is_pi() { grep -qs "Raspberry Pi" /proc/device-tree/model; }
 
+backend() { .venv/bin/python -c 'import sys; from icefloe import config; print(config.load(sys.argv[1]).board.backend)' "$1"; }
+
 if [ "$mode" = dry ] && [ -x .venv/bin/icefloe ]; then :   # a dry run plans with what is installed
-elif is_pi || [ "$mode" != run ]; then ensure_venv robot
+elif is_pi || [ "$mode" != run ]; then ensure_venv planner   # the robot's own venv is /opt/icefloe/venv
 else ensure_venv viz
 fi
-if [ "$mode" = run ] && is_pi && [ -n "$config" ] \
-    && .venv/bin/icefloe config "$config" | grep -q '"backend": "hardware"'; then
-    mode=install
+if [ "$mode" = run ] && is_pi; then
+    if [ -n "$config" ] && [ "$(backend "$config")" = hardware ]; then mode=install
+    else ensure_venv robot   # a Pi running a simulated robot in the foreground
+    fi
 fi
 
 case "$mode" in
