@@ -21,7 +21,7 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from conftest import Robot, free_port
+from conftest import Proc, Robot, free_port
 
 from icefloe import config as config_mod
 from icefloe.cli import doctor as doc
@@ -232,26 +232,63 @@ def test_missing_and_wrong_devices_are_named(tmp_path: Path) -> None:
     assert report.problems == []
 
 
+RT_CHILD = ("import ctypes, os, sys, time\n"
+            "try:\n    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(7))\n"
+            "except OSError:\n    sys.exit(3)\n"
+            "if ctypes.CDLL('libc.so.6').mlockall(3):\n    sys.exit(3)\n"
+            "print('ready', flush=True)\ntime.sleep(30)\n")
+"""A process that takes SCHED_FIFO 7 and locks its memory, if this machine lets it."""
+
+
+def realtime_child() -> subprocess.Popen[str] | None:
+    """`RT_CHILD` running, or None where the machine grants no real time."""
+    child = subprocess.Popen([sys.executable, "-c", RT_CHILD], stdout=subprocess.PIPE, text=True)
+    if child.stdout.readline().strip() == "ready":  # type: ignore[union-attr]
+        return child
+    child.wait()
+    return None
+
+
 def test_the_cycles_real_time_as_the_kernel_has_it() -> None:
     """hw/loop's realtime_priority and memory_locked come from the kernel, not from what was asked."""
     from icefloe.services.hwbridge.bridge import realtime_of
 
     assert realtime_of(os.getpid()) == (0, False)  # pytest: normal scheduling, nothing locked
     assert realtime_of(0) == (0, False)  # no cycle yet (0 would mean "this process" to the kernel)
-    child = subprocess.Popen([sys.executable, "-c", (
-        "import ctypes, os, sys, time\n"
-        "try:\n    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(7))\n"
-        "except OSError:\n    sys.exit(3)\n"
-        "if ctypes.CDLL('libc.so.6').mlockall(3):\n    sys.exit(3)\n"
-        "print('ready', flush=True)\ntime.sleep(30)\n")], stdout=subprocess.PIPE, text=True)
+    child = realtime_child()
+    if child is None:
+        pytest.skip("this machine grants no SCHED_FIFO or mlockall to a test")
     try:
-        if child.stdout.readline().strip() != "ready":  # type: ignore[union-attr]
-            pytest.skip("this machine grants no SCHED_FIFO or mlockall to a test")
         assert realtime_of(child.pid) == (7, True)
     finally:
         child.kill()
         child.wait()
     assert realtime_of(child.pid) == (0, False)  # gone
+
+
+def test_a_real_board_config_checks_the_device_and_the_cycles_real_time(make_robot) -> None:
+    """hwbridge with a hardware config on the simulator's pseudo-terminal (the wire is the board's):
+    doctor looks at that device, and at the real time the kernel granted the cycle."""
+    sim = make_robot('services = ["sim"]\n')
+    sim.start("sim")
+    hw = sim.tmp / "hw.toml"
+    hw.write_text(f'extends = "{sim.config_path}"\nservices = ["hwbridge"]\n[board]\nbackend = "hardware"\n'
+                  f'serial_port = "{sim.config.board.serial_port}"\n')
+    sim.procs.append(Proc("hwbridge", [sys.executable, "-m", "icefloe.services.hwbridge", "--config", str(hw)],
+                          sim.tmp / "hwbridge.log", sim.env))
+    child = realtime_child()  # what this machine grants, asked the same way
+    granted = child is not None
+    if child is not None:
+        child.kill()
+        child.wait()
+    res = doctor(str(hw), "--wait", "40", timeout=80)
+    if granted:
+        assert res.returncode == 0, res.stdout + res.stderr
+        assert "SCHED_FIFO 80, memory locked" in res.stdout and f"{sim.config.board.serial_port} ok" in res.stdout
+    else:
+        assert about("hwbridge", res)[0].startswith("hwbridge: the cycle runs at normal scheduling, not "
+                                                    "SCHED_FIFO 80"), res.stdout
+    assert "not checked: real time" not in res.stdout and "not checked: devices" not in res.stdout
 
 
 def loop(t: float, **fields: object) -> tuple[m.LoopStats, int]:
