@@ -466,8 +466,7 @@ def ensure_credentials(config: RobotConfig, host: str, manifest: Manifest) -> bo
     made_dir = make_dir(path.parent, manifest)
     _, created = credentials_mod.make(path, config.name, [f"tcp/{host}:{port}"] if host else [])
     print(f"  {'made' if created else 'kept'} {path}", flush=True)
-    if created:
-        manifest.add("credentials", path)
+    manifest.add("credentials", path)  # made now or before: this install gives it to icefloe, remove takes it back
     st = path.stat()
     user = pwd.getpwnam(USER)
     if (st.st_uid, st.st_gid, st.st_mode & 0o7777) == (user.pw_uid, user.pw_gid, 0o600):
@@ -632,6 +631,8 @@ def remove_plan(manifest: Manifest, purge: bool = False) -> list[Action]:
     plan += [Action(f"remove {p}", ("rm", "-f", str(p))) for p in files]
     if units_ and systemd_running():
         plan.append(Action("reload systemd", ("systemctl", "daemon-reload")))
+        plan.append(Action("forget the units' failures (a camera that could not start)",
+                           ("systemctl", "reset-failed", *units_), tolerant="(none had failed)"))
     if UDEV_RULES_PATH in files:
         plan.append(Action("reload udev rules", ("udevadm", "control", "--reload-rules"),
                            tolerant="udev is not running here (a container?)"))
