@@ -45,7 +45,7 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
         r.close()
 
 
-def doctor(*args: str, timeout: float = 30, as_: list[str] | None = None) -> subprocess.CompletedProcess[str]:
+def doctor(*args: str, timeout: float = 90, as_: list[str] | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*(as_ or []), *ICEFLOE, "doctor", *args], capture_output=True, text=True, timeout=timeout)
 
 
@@ -76,7 +76,7 @@ def until(robot: Robot, done: Callable[[subprocess.CompletedProcess[str]], bool]
 
 def healthy(robot: Robot, wait: float = 40) -> subprocess.CompletedProcess[str]:
     """The doctor's report once the robot is healthy (``--wait``: it checks again until then)."""
-    res = doctor(str(robot.config_path), "--wait", str(wait), timeout=wait + 30)
+    res = doctor(str(robot.config_path), "--wait", str(wait), timeout=wait + 60)
     assert res.returncode == 0, f"not healthy within {wait} s:\n{res.stdout}{res.stderr}"
     return res
 
