@@ -49,7 +49,7 @@ def _why_not() -> str:
     return ""
 
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500),
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(2400),
               pytest.mark.skipif(bool(_why_not()), reason=_why_not() or "-")]
 
 
