@@ -574,7 +574,7 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
                       f"--user-group {USER} (unless it exists)\nusermod -aG {','.join(GROUPS)} {USER}"),
     ]
     plan += [Action(f"the robot's config{' ' if src == config_path else ', the file it extends, '}{dest}",
-                    step=lambda m, src=src, dest=dest: copy_file(src, dest, m),
+                    step=lambda m, src=src, dest=dest: copy_file(src, dest, m), on_change=restart.set,
                     detail=f"copy {src} to {dest} (mode 644)") for src, dest in copies.items()]
     plan += [
         Action("device permissions for the serial port, SPI, I2C and GPIO",
@@ -592,13 +592,14 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
                    detail=f"in {CMDLINE}: remove console=serial0,<baud>; add isolcpus={cpu} "
                           "(unless an isolcpus= is there)"),
         ]
-    plan += [
-        Action(f"the runtime folder {config.runtime_dir} for the services' sockets, at every boot, "
-               f"private to {USER}",
-               path=TMPFILES, content=f"d {config.runtime_dir} 0700 {USER} {USER} -\n"),
-        Action("create it now", step=lambda m: make_runtime_dir(config.runtime_dir, m),
-               detail=f"run: systemd-tmpfiles --create {TMPFILES} (unless {config.runtime_dir} exists)"),
-    ]
+    if config.run_dir:  # (without one, each service makes its own under /tmp, as on a laptop)
+        plan += [
+            Action(f"the runtime folder {config.runtime_dir} for the services' sockets, at every boot, "
+                   f"private to {USER}",
+                   path=TMPFILES, content=f"d {config.runtime_dir} 0700 {USER} {USER} -\n"),
+            Action("create it now", step=lambda m: make_runtime_dir(config.runtime_dir, m),
+                   detail=f"run: systemd-tmpfiles --create {TMPFILES} (unless {config.runtime_dir} exists)"),
+        ]
     if config.zenoh.access_control and config.zenoh.credentials:
         plan.append(Action(f"this robot's credentials (made once, private to {USER}, never printed)",
                            step=lambda m: ensure_credentials(config, o.host, m),
