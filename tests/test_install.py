@@ -10,7 +10,8 @@
 and what goes with them: ``remove`` undoes exactly what the install's manifest lists, a second
 install changes nothing, the camera without picamera2 exits 2 with one line and the rest of the
 robot runs, hwbridge says in one line what real time it is refused. The whole install, run for
-real in a booted Debian root, is tests/test_box*.py's. About 15 s (the `icefloe up` test).
+real in a booted Debian root, is tests/test_box*.py's. About 30 s, most of it the `icefloe up` test (on a
+loaded machine up to 2 min: `apt-cache policy` waits for the disk).
 """
 
 from __future__ import annotations
