@@ -276,6 +276,10 @@ class Board:
 def nspawn_command(state: State, cache: Path, name: str) -> list[str]:
     return ["systemd-nspawn", "--register=no", "--keep-unit", "--boot", f"--machine={name}",
             f"--directory={state.root}", "--console=read-only",
+            # nspawn's system call filter allows mlock() only to a box with CAP_IPC_LOCK; a Pi
+            # allows it within RLIMIT_MEMLOCK (Zenoh's shared memory locks its segments, hwbridge's
+            # cycle its memory). The services, run as icefloe, do not get the capability itself.
+            "--capability=CAP_IPC_LOCK",
             f"--bind={cache / 'pip'}:{BOX_PIP}", f"--bind={cache / 'apt'}:{BOX_APT}",
             f"--bind-ro={cache / 'wheels'}:{BOX_WHEELS}"]
 
