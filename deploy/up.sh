@@ -30,7 +30,7 @@ done
 
 is_pi() { grep -qs "Raspberry Pi" /proc/device-tree/model; }
 
-backend() { .venv/bin/python -c 'import sys; from icefloe import config; print(config.load(sys.argv[1]).board.backend)' "$1"; }
+backend() { .venv/bin/python -c 'import sys; from icefloe import config; print(config.load(sys.argv[1]).board.backend)' "$1" 2>/dev/null; }  # a bad config: `icefloe up` says why
 
 if [ "$mode" = dry ] && [ -x .venv/bin/icefloe ]; then :   # a dry run plans with what is installed
 elif is_pi || [ "$mode" != run ]; then ensure_venv planner   # the robot's own venv is /opt/icefloe/venv
