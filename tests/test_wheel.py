@@ -30,6 +30,8 @@ NOT_SHIPPED = {
     "deploy/up.sh": "sets up and runs a checkout's .venv",
     "deploy/down.sh": "undoes deploy/up.sh on a robot",
     "deploy/setup.sh": "sourced by deploy/up.sh and tests/run.sh",
+    "deploy/box.sh": "boots a checkout's robot in a box (docs/box.md)",
+    "deploy/box/NEEDS.md": "notes between the box's and the install's engineers",
     "schemas/README.md": "the contract's documentation, read in the repository",
 }
 """Files of the package folders that only a checkout needs, and why."""
