@@ -37,6 +37,8 @@ SERVICES = ["info", "hwbridge", "odometry", "localizer", "power", "oled", "webap
 UNITS = ["icefloe-router.service", "icefloe-hwbridge.service",
          *(f"icefloe@{s}.service" for s in SERVICES if s != "hwbridge")]
 PORTS = (7447, 8080)
+ROUTER = "tcp/127.0.0.1:7447"
+WEBAPI = "http://127.0.0.1:8080"
 T = TypeVar("T")
 
 
@@ -71,8 +73,8 @@ class Box:
         self.credentials = folder / f"{ROBOT}.credentials"
 
     def sh(self, *args: str, timeout: float = 900, check: bool = True) -> subprocess.CompletedProcess[str]:
-        r = subprocess.run([str(BOX), "--dir", str(self.dir), *args], capture_output=True, text=True,
-                           timeout=timeout, cwd=ROOT)
+        r = subprocess.run([str(BOX), "--dir", str(self.dir), "--name", "icefloe-test", *args],
+                           capture_output=True, text=True, timeout=timeout, cwd=ROOT)
         if check and r.returncode != 0:
             raise AssertionError(f"deploy/box.sh {' '.join(args)} exited {r.returncode}:\n{r.stdout}\n{r.stderr}")
         return r
@@ -170,7 +172,7 @@ def test_1_install_as_pi_from_a_0700_home_twice(box: Box) -> None:
     assert box.credentials.exists(), out
     before = _install_snapshot(box)
     start = time.monotonic()
-    again = box.run("cd ~/icefloe && ./deploy/up.sh penguin1 --install --no-boot-config", user="pi",
+    again = box.run(f"cd ~/icefloe && ./deploy/up.sh {ROBOT} --install --no-boot-config", user="pi",
                     timeout=900).stdout
     print(f"second install: {time.monotonic() - start:.0f} s")
     assert "Done: 0 steps changed something." in again, again
@@ -221,13 +223,13 @@ def test_3_from_outside_with_the_owners_credentials(box: Box) -> None:
                       and all(s in r.stdout for s in SERVICES) and r.stdout, 60, 2)
     print(status)
     # Nothing moves without credentials
-    assert _drive(box, 20, "--connect", "tcp/127.0.0.1:7447") < 0.005
+    assert _drive(box, 20, "--connect", ROUTER) < 0.005
     moved = _drive(box, 46, *creds)
     print(f"drove {moved:.3f} m by the simulator's truth (asked 1 m)")
     assert abs(moved - 1.0) <= 0.05
     # The old web API: a route that commands needs the owner's login; without it, 401
     owner = read_credentials(box.credentials)
-    request = urllib.request.Request("http://127.0.0.1:8080/robot/stop")
+    request = urllib.request.Request(f"{WEBAPI}/robot/stop")
     with pytest.raises(urllib.error.HTTPError) as no_login:
         urllib.request.urlopen(request, timeout=10)
     assert no_login.value.code == 401
@@ -314,7 +316,7 @@ def test_6_doctor_is_clean_and_names_each_injected_fault(box: Box) -> None:
 
 
 def test_7_down_removes_everything_and_installing_again_works(box: Box) -> None:
-    box.run("cd ~/icefloe && ./deploy/down.sh penguin1", user="pi", timeout=300)
+    box.run(f"cd ~/icefloe && ./deploy/down.sh {ROBOT}", user="pi", timeout=300)
     left = box.run("ls /etc/systemd/system/icefloe* /etc/udev/rules.d/99-icefloe.rules /etc/tmpfiles.d/icefloe.conf "
                    "/opt/icefloe 2>/dev/null; systemctl list-units 'icefloe*' --no-legend --plain", check=False)
     assert left.stdout.strip() == "", left.stdout
