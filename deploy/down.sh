@@ -1,12 +1,17 @@
 #!/usr/bin/env bash
-# Undo deploy/up.sh on a robot: stop and remove the systemd units and device rules.
-# The credentials file and the boot config are left as they are.
-#   ./deploy/down.sh CONFIG [--dry-run]
+# Undo deploy/up.sh on a robot: remove exactly what its install added, as listed in
+# /opt/icefloe/install.json (units, udev rules, tmpfiles entry, boot lines, the user icefloe,
+# /opt/icefloe, the config files in /etc/icefloe). Apt packages stay installed; the robot's
+# credentials file stays (root's, mode 0600) unless --purge: see docs/deploy.md.
+#   ./deploy/down.sh CONFIG [--dry-run] [--purge]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-config="${1:?usage: deploy/down.sh CONFIG [--dry-run]}"
+config="${1:?usage: deploy/down.sh CONFIG [--dry-run] [--purge]}"
 shift
-if [ "${1:-}" = "--dry-run" ]; then
-    exec .venv/bin/python -m icefloe.deploy remove "$config" --dry-run
-fi
-exec sudo .venv/bin/python -m icefloe.deploy remove "$config"
+python=.venv/bin/python
+[ -x "$python" ] || python=/opt/icefloe/venv/bin/python   # a checkout whose .venv is gone: the robot's own
+for arg in "$@"; do
+    if [ "$arg" = "--dry-run" ]; then exec "$python" -m icefloe.deploy remove "$config" "$@"; fi
+done
+sudo=(sudo); [ "$(id -u)" = 0 ] && sudo=()
+exec ${sudo[@]+"${sudo[@]}"} "$python" -m icefloe.deploy remove "$config" "$@"

@@ -1,5 +1,8 @@
 # Sourced by deploy/up.sh and tests/run.sh: make .venv with icefloe installed (editable), once.
 # Usage: ensure_venv EXTRAS   (e.g. "viz" or "dev"); reinstalls when pyproject.toml changes.
+# "planner": only what plans and runs a robot install (icefloe/deploy.py: icefloe and msgspec, no
+# other dependency), so that a robot's install downloads the robot's dependencies once, into
+# /opt/icefloe/venv, not twice.
 ensure_venv() {
     local extras="$1" py="${PYTHON:-python3}"
     if ! "$py" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
@@ -16,7 +19,15 @@ ensure_venv() {
     if [ "$extras" = viz ] && [ -e ".venv/.icefloe-dev-$sum" ]; then
         return 0  # the dev extra holds the viz extra: a developer's .venv runs up.sh as it is
     fi
-    if [ ! -e "$stamp" ]; then
+    if [ "$extras" = planner ] && compgen -G ".venv/.icefloe-*-$sum" >/dev/null; then
+        return 0  # any install of icefloe plans a robot install too
+    fi
+    if [ "$extras" = planner ]; then
+        echo "== installing icefloe's robot installer into .venv (icefloe and msgspec only)"
+        .venv/bin/python -m pip install --quiet "msgspec>=0.19"   # (as in pyproject.toml)
+        .venv/bin/python -m pip install --quiet --no-deps -e .
+        touch "$stamp"
+    elif [ ! -e "$stamp" ]; then
         echo "== installing icefloe[$extras] into .venv (first run takes a few minutes)"
         .venv/bin/python -m pip install --quiet --upgrade pip
         .venv/bin/python -m pip install --quiet -e ".[$extras]"

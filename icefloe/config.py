@@ -577,8 +577,10 @@ def field_error(source: str, exc: msgspec.ValidationError) -> str:
     return f"{source}: {where + ': ' if where else ''}{text}"
 
 
-def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
-    """Typed config from a TOML-shaped dict; `ConfigError` names the source and the key."""
+def parse(data: dict[str, Any], source: str = "<config>", *, credentials: bool = True) -> RobotConfig:
+    """Typed config from a TOML-shaped dict; `ConfigError` names the source and the key.
+    ``credentials=False``: leave the robot's credentials file unread (a tool that only reads the
+    robot, run by a user who may not read the file: `icefloe doctor` as ``pi``)."""
     try:
         if isinstance(programs := data.get("programs"), dict):
             for name, program in programs.items():  # one by one: an error names the program
@@ -595,7 +597,7 @@ def parse(data: dict[str, Any], source: str = "<config>") -> RobotConfig:
                                                      "python": sys.executable})
     expanded["source"] = source
     zenoh = expanded["zenoh"]
-    if zenoh["credentials"] and not zenoh["user"] and Path(zenoh["credentials"]).expanduser().exists():
+    if credentials and zenoh["credentials"] and not zenoh["user"] and Path(zenoh["credentials"]).expanduser().exists():
         from .credentials import read
 
         creds = read(zenoh["credentials"])
@@ -643,7 +645,8 @@ def find(name_or_path: str | os.PathLike[str] | None = None) -> Path:
     return paths.find("robots", DEFAULT_ROBOT if name_or_path is None else name_or_path, "robot config")
 
 
-def load(name_or_path: str | os.PathLike[str] | None = None) -> RobotConfig:
-    """Load a robot config by name or path (``None`` = the simulated robot ``sim``)."""
+def load(name_or_path: str | os.PathLike[str] | None = None, *, credentials: bool = True) -> RobotConfig:
+    """Load a robot config by name or path (``None`` = the simulated robot ``sim``); ``credentials``
+    as `parse`."""
     p = find(name_or_path)
-    return parse(_read(p.resolve()), str(p))
+    return parse(_read(p.resolve()), str(p), credentials=credentials)

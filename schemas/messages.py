@@ -233,6 +233,11 @@ class LoopStats(Message):
     commands_dropped: int = 0
     """Motion commands not applied because they were issued before a stop, were older than the
     deadman or were overtaken by a newer one from the same sender, since start."""
+    realtime_priority: int = 0
+    """``SCHED_FIFO`` priority the cycle runs at (``hwbridge.priority`` when the OS granted it);
+    0: normal scheduling, the OS refused real time (hwbridge's log says why at start)."""
+    memory_locked: bool = False
+    """The cycle's memory is locked in RAM (``mlockall`` granted), so it is never paged out."""
 
 
 class BatteryReading(Message):

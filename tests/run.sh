@@ -8,6 +8,9 @@ ensure_apt Xvfb xvfb mesa-vulkan-drivers   # a display for the Rerun viewer test
 ensure_apt chromium chromium   # a real browser for the robot's page (tests/test_webapi_page.py, Playwright drives it)
 # MessagePack for C and C++: the message code of examples/c and examples/cpp (tests/test_other_languages.py)
 ensure_apt /usr/include/msgpack.hpp libmsgpack-dev libmsgpack-cxx-dev
+# the robot in a box (tests/test_box.py, docs/box.md): Debian's root maker and systemd's container tool
+ensure_apt debootstrap debootstrap
+ensure_apt systemd-nspawn systemd-container
 echo "== ruff"
 .venv/bin/ruff check .
 echo "== pytest"

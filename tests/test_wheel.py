@@ -30,6 +30,8 @@ NOT_SHIPPED = {
     "deploy/up.sh": "sets up and runs a checkout's .venv",
     "deploy/down.sh": "undoes deploy/up.sh on a robot",
     "deploy/setup.sh": "sourced by deploy/up.sh and tests/run.sh",
+    "deploy/box.sh": "boots a checkout's robot in a box (docs/box.md)",
+    "deploy/box/NEEDS.md": "notes between the box's and the install's engineers",
     "schemas/README.md": "the contract's documentation, read in the repository",
 }
 """Files of the package folders that only a checkout needs, and why."""
@@ -153,9 +155,10 @@ def test_installed_anywhere_it_runs_the_simulated_robot_and_a_viewer(installed: 
     shipped = json.loads(installed.run("icefloe", "config", "penguin1").stdout)
     assert shipped["source"].startswith(str(installed.venv)) and shipped["board"]["backend"] == "hardware"
 
-    # A robot installed from the wheel: its systemd units run this venv's Python.
+    # A robot installed from the wheel: its units run /opt/icefloe/venv (icefloe/deploy.py), not a home.
     plan = installed.run("python", "-m", "icefloe.deploy", "install", "penguin1", "--dry-run").stdout
-    assert f"ExecStart={installed.venv}/bin/python -m icefloe.services.hwbridge --config " in plan, plan
+    exec_start = "ExecStart=/opt/icefloe/venv/bin/python -m icefloe.services.hwbridge --config /etc/icefloe/robots/"
+    assert exec_start in plan, plan
 
     # The user's own sim.toml overrides the shipped one by name; it extends the shipped one.
     port, web = free_port(), free_port()

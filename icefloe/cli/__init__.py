@@ -12,6 +12,7 @@
     snapshot.py    snapshot                            save a frame of the robot's camera
     calibrate.py   calibrate                           calibrate the robot's camera
     scaffold.py    new-service                         a service of your own, ready to run and test
+    doctor.py      doctor                              check a robot's health, one line per problem
     completion.py  completion                          shell completion (argcomplete)
 
 A verb module has a ``register(verbs)`` function that adds its sub-parsers, each with
@@ -32,7 +33,7 @@ import argcomplete
 from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
 VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
-                "extloc", "scaffold", "completion")
+                "extloc", "scaffold", "doctor", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\

@@ -8,7 +8,10 @@
 * ``camera/image``: a smaller JPEG at ``camera.image_rate_hz`` (the Wi-Fi is shared
   by a class); ``camera/snapshot``: one full-resolution JPEG of the latest frame.
 * A missing or failing camera, or a bad frame, is logged and retried: the service
-  never dies for it.
+  never dies for it. Only when the camera's software is not installed at all (picamera2,
+  an apt package of Raspberry Pi OS) does it exit at once with one line naming the package,
+  with `CANNOT_START` (2): neither `icefloe up` nor the robot's unit restarts it, and the
+  rest of the robot runs.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from icefloe.worldmap import load_world
 
 from .detection import BadFrame, Detector, check_frame
 from .geometry import Intrinsics, Mount
-from .sources import SimSource, Source, SourceError, open_source
+from .sources import SimSource, Source, SourceError, open_source, picamera2_class
 
 RETRY_S = 2.0
 REPORT_S = 10.0
@@ -109,6 +112,8 @@ def make_detector(config: RobotConfig) -> Detector:
 
 async def main(config: RobotConfig) -> None:
     cam = config.camera
+    if cam.source == "picamera2":
+        picamera2_class()  # CameraMissing: one line, exit 2 (run() says it), no restart
     detector = make_detector(config)  # ConfigError for a bad calibration file: run() says so, exits
     async with Node("camera", config) as node:
         slot, stop, sources = LatestFrame(), threading.Event(), []

@@ -138,16 +138,26 @@ class FolderSource:
         pass
 
 
+class CameraMissing(SourceError):
+    """The software of the configured camera is not installed here: waiting or restarting cannot help."""
+
+
+def picamera2_class() -> type:
+    """picamera2's ``Picamera2`` (Raspberry Pi OS has it, with libcamera's bindings, as apt packages only;
+    the robot's venv sees them through its system site packages: docs/deploy.md)."""
+    try:
+        from picamera2 import Picamera2
+    except ImportError as exc:  # picamera2 itself, or libcamera's bindings it imports
+        raise CameraMissing(f'camera.source = "picamera2": cannot import {exc.name or "picamera2"} '
+                            "(Raspberry Pi OS: sudo apt install python3-picamera2)") from None
+    return Picamera2
+
+
 class Picamera2Source:
-    """The Raspberry Pi camera (picamera2 is on Raspberry Pi OS; imported only here)."""
+    """The Raspberry Pi camera (picamera2 is imported only here)."""
 
     def __init__(self, width: int, height: int) -> None:
-        try:
-            from picamera2 import Picamera2
-        except ImportError:
-            raise SourceError("picamera2 is not installed (Raspberry Pi OS: apt install python3-picamera2)") \
-                from None
-        self.camera = Picamera2()
+        self.camera = picamera2_class()()
         self.camera.configure(self.camera.create_video_configuration(
             main={"size": (width, height), "format": "BGR888"}))
         self.camera.start()

@@ -351,6 +351,21 @@ class Bridge:
                 self.log.info("%s", text)
 
 
+def realtime_of(pid: int) -> tuple[int, bool]:
+    """The ``SCHED_FIFO`` priority (0: not real time) and memory lock of process ``pid``, as the
+    kernel has them: what the cycle was granted, whatever it asked for (`rt.make_realtime`)."""
+    if pid <= 0:
+        return 0, False
+    try:
+        fifo = os.sched_getscheduler(pid) == os.SCHED_FIFO
+        priority = os.sched_getparam(pid).sched_priority if fifo else 0
+        with open(f"/proc/{pid}/status") as status:  # VmLck: memory locked by mlockall, kB
+            locked = any(line.startswith("VmLck:") and int(line.split()[1]) > 0 for line in status)
+    except (OSError, ValueError, IndexError):  # the cycle just exited: nothing to report
+        return 0, False
+    return priority, locked
+
+
 class LoopReport:
     """Turns two state snapshots (and the histogram) into one `LoopStats` per interval."""
 
@@ -374,6 +389,7 @@ class LoopReport:
         cycles = state["cycles"] - prev["cycles"]
         p50, p99, p999 = percentiles(delta, (0.5, 0.99, 0.999))
         errors = sum(state[k] for k in ("crc_errors", "timeouts", "unmatched", "lost", "late"))
+        priority, locked = realtime_of(state["pid"])
         return m.LoopStats(
             stamp=time.time_ns(),
             rate=cycles / elapsed,
@@ -389,4 +405,5 @@ class LoopReport:
             unmatched=state["unmatched"], garbage_bytes=state["garbage_bytes"],
             board_errors=state["board_errors"], stalled_reads=state["stalled_reads"] + stalled_reads,
             late=state["late"], commands_dropped=dropped,
+            realtime_priority=priority, memory_locked=locked,
         )

@@ -46,7 +46,8 @@ class SpiTransport:
         try:
             import spidev  # only on the Pi: the simulator does not need it
         except ImportError:
-            raise BoardError(f"{device}: the spidev package is not installed") from None
+            raise BoardError(f"{device}: the spidev package is not installed "
+                             "(Raspberry Pi OS: sudo apt install python3-spidev)") from None
         name = device.rsplit("spidev", 1)[-1]
         try:
             bus, chip = (int(part) for part in name.split("."))

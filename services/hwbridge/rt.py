@@ -29,7 +29,7 @@ sends the stop to the board at once (`Cycle.stop_now`), unless the next
 period is due within an eighth of a period. Motion commands wait for the next period.
 
 Where the OS allows it: ``SCHED_FIFO`` at ``hwbridge.priority``, ``mlockall``,
-pinned to ``hwbridge.cpu``; otherwise one warning each and carry on. The garbage
+pinned to ``hwbridge.cpu``; what is withheld is one warning line, and the cycle carries on. The garbage
 collector is disabled and every object made during setup is frozen; the cycle
 itself creates only short-lived objects that reference counting frees at once.
 """
@@ -105,22 +105,26 @@ class AbsoluteTimer:
 
 
 def make_realtime(priority: int, cpu: int, say: Say) -> None:
-    """SCHED_FIFO, mlockall and CPU pinning, each where permitted (one warning when not)."""
+    """SCHED_FIFO, mlockall and CPU pinning, each where permitted. What is withheld (a laptop, a
+    container, a unit without LimitRTPRIO/LimitMEMLOCK) is said in ONE warning line, and the cycle
+    runs anyway."""
     libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    withheld = []
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except (OSError, AttributeError, ValueError) as exc:
-        say(MSG_WARNING, f"cannot use SCHED_FIFO priority {priority} ({exc}); "
-                         "running at normal priority, expect more latency")
+        withheld.append(f"SCHED_FIFO priority {priority} ({getattr(exc, 'strerror', None) or exc})")
     if libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
-        err = ctypes.get_errno()
-        say(MSG_WARNING, f"mlockall failed ({os.strerror(err)}); pages may be swapped out")
+        withheld.append(f"mlockall ({os.strerror(ctypes.get_errno())})")
     try:
         cpus = sorted(os.sched_getaffinity(0))
         target = cpus[-1] if cpu < 0 else cpu
         os.sched_setaffinity(0, {target})
     except (OSError, AttributeError, ValueError) as exc:
-        say(MSG_WARNING, f"cannot pin the cycle to CPU {cpu} ({exc})")
+        withheld.append(f"pinning to CPU {cpu} ({getattr(exc, 'strerror', None) or exc})")
+    if withheld:
+        say(MSG_WARNING, f"real time withheld here: {', '.join(withheld)}; the cycle runs anyway, "
+                         "expect more latency (docs/deploy.md#real-time-kernels)")
     # If the bus process dies, the kernel sends us SIGTERM: we stop the wheels and exit.
     libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
 

@@ -1,0 +1,653 @@
+"""The robot in a box: a fresh Debian bookworm booted with systemd-nspawn, installed as a TA would.
+
+    deploy/box.sh [up]            build the root once (cached), boot a fresh copy, install penguin1 as pi
+    deploy/box.sh exec [--user pi] -- CMD...   run a command in the box
+    deploy/box.sh board pose|unplug|plug       the board outside the box (pose: the simulator's truth)
+    deploy/box.sh reboot | down               reboot the box | power it off and throw it away
+
+The root (`build`) is made once with debootstrap from Debian's packages and kept in a cache outside
+the checkout (``--cache``, default /var/cache/icefloe/box); every `up` boots a fresh copy (an
+overlay over the cached root) that `down` throws away. The box shares the host's network: the
+robot's router is then 127.0.0.1:7447 and its web API :8080, as a laptop in the lab reaches a robot.
+
+The board is the simulator's PenguinPi model, run by this program (the box's supervisor) *outside*
+the box, on a pseudo-terminal made in the box's own /dev/pts and linked as /dev/serial0, with the
+group and mode the install's udev rule gives the Pi's UART (the box has no udev). World physics and
+the simulator's truth stay outside, as the floor does for a real robot: `board pose` reads them.
+
+What a Raspberry Pi has and the box lacks is said explicitly, in the install's own flags (docs/box.md):
+``./deploy/up.sh penguin1 --install --no-boot-config``. Box infrastructure, not the robot's: pi's
+passwordless sudo (the TA typing a password), a pip and an apt cache bound from the host.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import fcntl
+import json
+import os
+import shlex
+import shutil
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+import tty
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+SUITE = "bookworm"
+MIRROR = "http://deb.debian.org/debian"
+PACKAGES = [
+    # what a stock Raspberry Pi OS Lite (bookworm) has that an install touches; no compiler, no headers
+    "systemd", "systemd-sysv", "dbus", "udev", "kmod", "sudo", "adduser", "passwd", "git", "python3",
+    "python3-venv", "ca-certificates", "iproute2", "procps", "less", "nano", "locales", "tzdata",
+]
+SOURCES = f"""\
+deb {MIRROR} {SUITE} main
+deb {MIRROR} {SUITE}-updates main
+deb http://deb.debian.org/debian-security {SUITE}-security main
+"""
+READY = ".icefloe-box-ready"
+"""Marker file in a finished cached root (a root half made by an interrupted build has none)."""
+BOX_PIP = "/var/cache/icefloe-box/pip"
+BOX_WHEELS = "/var/cache/icefloe-box/wheels"
+EXTRAS = ("viz", "robot")
+"""The extras of the README's command and of the robot install: their wheels are kept (`wheelhouse`)."""
+BOX_APT = "/var/cache/apt/archives"
+BOARD_CONFIG = "sim"
+"""The simulated robot's config gives the board model (penguin1 extends it: the same geometry)."""
+SERIAL = "/dev/serial0"
+TIOCGPTN, TIOCSPTLCK = 0x80045430, 0x40045431
+REBOOT_STATUS = 133
+"""systemd-nspawn's exit status when the box's systemd asked for a reboot."""
+PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
+
+
+def say(msg: str) -> None:
+    print(f"box: {msg}", flush=True)
+
+
+class BoxError(Exception):
+    """One line for the user: what went wrong and what to do."""
+
+
+# ---------------------------------------------------------------------------------------- the root
+
+def cached_root(cache: Path, arch: str) -> Path:
+    return cache / f"{SUITE}-{arch}"
+
+
+def build(cache: Path, arch: str, rebuild: bool = False) -> Path:
+    """The cached root for ``arch``, made with debootstrap if it is missing (a few minutes, once)."""
+    root = cached_root(cache, arch)
+    if (root / READY).exists() and not rebuild:
+        return root
+    for tool in ("debootstrap", "systemd-nspawn"):
+        if not shutil.which(tool):
+            raise BoxError(f"{tool} is missing: apt-get install debootstrap systemd-container")
+    partial = root.with_name(root.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    partial.parent.mkdir(parents=True, exist_ok=True)
+    say(f"making the {SUITE} {arch} root with debootstrap in {root} (once; a few minutes)")
+    start = time.monotonic()
+    cmd = ["debootstrap", "--variant=minbase", f"--arch={arch}", f"--include={','.join(PACKAGES)}",
+           SUITE, str(partial), MIRROR]
+    log = cache / f"debootstrap-{arch}.log"
+    with log.open("w") as out:
+        if subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT).returncode != 0:
+            raise BoxError(f"debootstrap failed: see {log}")
+    (partial / "etc/apt/sources.list").write_text(SOURCES)
+    (partial / "etc/hostname").write_text("raspberrypi\n")
+    # Debian's root has the CA list of its ca-certificates; this machine's may hold a proxy's CA
+    # that pip needs to reach PyPI from here.
+    host_ca = Path("/etc/ssl/certs/ca-certificates.crt")
+    if host_ca.exists():
+        shutil.copy(host_ca, partial / "etc/ssl/certs/ca-certificates.crt")
+    with contextlib.suppress(FileNotFoundError):
+        (partial / "etc/machine-id").unlink()   # each box gets its own at first boot
+    (partial / "etc/machine-id").write_text("")
+    subprocess.run(["chroot", str(partial), "apt-get", "clean"], check=False)
+    (partial / READY).write_text(time.strftime("%Y-%m-%dT%H:%M:%SZ\n", time.gmtime()))
+    shutil.rmtree(root, ignore_errors=True)
+    partial.rename(root)
+    size = subprocess.run(["du", "-sh", str(root)], capture_output=True, text=True).stdout.split()[0]
+    say(f"root ready in {time.monotonic() - start:.0f} s ({size})")
+    return root
+
+
+def wheelhouse(repo: Path, folder: Path) -> None:
+    """The wheels of icefloe's dependencies (with `EXTRAS`), downloaded here once per pyproject.toml.
+
+    pip's own HTTP cache (bound as well) saves nothing where a proxy marks PyPI's answers
+    no-store, as on the machine this was made on; pip in the box still asks PyPI which versions
+    exist, and takes a file from here (find-links) when it is the one it would have downloaded.
+    """
+    import hashlib
+    import tomllib
+
+    pyproject = (repo / "pyproject.toml").read_bytes()
+    stamp = folder / f".stamp-{hashlib.sha256(pyproject).hexdigest()[:16]}"
+    if stamp.exists():
+        return
+    project = tomllib.loads(pyproject.decode())["project"]
+    wanted = [*project["dependencies"], *(d for e in EXTRAS for d in project["optional-dependencies"][e]),
+              "setuptools>=69", "pip", "wheel"]
+    folder.mkdir(parents=True, exist_ok=True)
+    say(f"downloading the wheels icefloe needs into {folder} (once per pyproject.toml)")
+    r = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--dest", str(folder), *wanted],
+                       capture_output=True, text=True)
+    if r.returncode != 0:  # not fatal: pip in the box downloads what is missing
+        say(f"could not fill the wheelhouse: {r.stderr.strip().splitlines()[-1:]}")
+        return
+    for old in folder.glob(".stamp-*"):
+        old.unlink()
+    stamp.touch()
+
+
+# ---------------------------------------------------------------------------------------- state
+
+class State:
+    """The running box's folder: the overlay, its console log, the supervisor's socket."""
+
+    def __init__(self, folder: Path) -> None:
+        self.dir = folder
+        self.upper, self.work, self.root = folder / "upper", folder / "work", folder / "root"
+        self.sock = folder / "box.sock"
+        self.console = folder / "console.log"
+        self.info = folder / "box.json"
+
+    def read(self) -> dict:
+        try:
+            return json.loads(self.info.read_text())
+        except (FileNotFoundError, ValueError):
+            return {}
+
+    def write(self, **values: object) -> None:
+        data = {**self.read(), **values}
+        tmp = self.info.with_suffix(".tmp")
+        tmp.write_text(json.dumps(data))
+        tmp.replace(self.info)
+
+
+def ask(state: State, command: str, timeout: float = 30.0) -> str:
+    """One request to the box's supervisor (see `Supervisor.handle`)."""
+    try:
+        with socket.socket(socket.AF_UNIX) as s:
+            s.settimeout(timeout)
+            s.connect(str(state.sock))
+            s.sendall(command.encode() + b"\n")
+            reply = s.makefile().readline().strip()
+    except OSError as exc:
+        raise BoxError(f"no box is running in {state.dir} ({exc.strerror or exc}): deploy/box.sh up") from None
+    if reply.startswith("error "):
+        raise BoxError(reply[6:])
+    return reply
+
+
+# ---------------------------------------------------------------------------------------- the board
+
+def box_pty(leader: int) -> tuple[int, int, str]:
+    """A pseudo-terminal in the devpts of the box whose PID 1 is ``leader``: (master, slave, name
+    inside the box), the slave with the group and mode the install's udev rule gives the Pi's UART."""
+    pts = Path(f"/proc/{leader}/root/dev/pts")
+    master = os.open(pts / "ptmx", os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    fcntl.ioctl(master, TIOCSPTLCK, struct.pack("i", 0))
+    number = struct.unpack("i", fcntl.ioctl(master, TIOCGPTN, b"\0" * 4))[0]
+    slave = os.open(pts / str(number), os.O_RDWR | os.O_NOCTTY)
+    tty.setraw(slave)  # no echo until hwbridge's pyserial sets the line up (as PtyLink does)
+    dialout = 20
+    with contextlib.suppress(KeyError, OSError, ValueError):
+        for line in Path(f"/proc/{leader}/root/etc/group").read_text().splitlines():
+            if line.startswith("dialout:"):
+                dialout = int(line.split(":")[2])
+    os.chown(pts / str(number), 0, dialout)
+    os.chmod(pts / str(number), 0o660)
+    return master, slave, f"/dev/pts/{number}"
+
+
+class Board:
+    """The simulator (world + PenguinPi firmware model, icefloe's `Simulator`) with its serial line
+    moved into the box: the model's `PtyLink` keeps running; only the terminal under it changes."""
+
+    def __init__(self, state: State) -> None:
+        from icefloe import config as config_mod
+        from icefloe.services.sim.simulator import Simulator
+
+        sys.setswitchinterval(0.0002)  # as the simulator service: the board answers within a cycle
+        folder = state.dir / "board"
+        folder.mkdir(mode=0o700, exist_ok=True)
+        cfg = config_mod.load(BOARD_CONFIG)
+        import msgspec
+
+        cfg = msgspec.structs.replace(cfg, run_dir=str(folder), board=msgspec.structs.replace(
+            cfg.board, serial_port=str(folder / "ttyPPI")))
+        self.sim = Simulator(cfg)
+        self.link = self.sim.board.link
+        self.sim.start()
+        self.leader = 0
+        self.where = ""
+        self.lock = threading.Lock()
+
+    def _swap(self, master: int, slave: int) -> None:
+        # dup2 onto the link's own descriptors: its reader polls and its writer writes the same
+        # numbers, now the new terminal; the old one closes (hwbridge's end sees the line drop).
+        os.dup2(master, self.link._master)
+        os.dup2(slave, self.link._slave)
+        os.close(master)
+        os.close(slave)
+
+    def plug(self, leader: int) -> str:
+        with self.lock:
+            master, slave, name = box_pty(leader)
+            self._swap(master, slave)
+            link = Path(f"/proc/{leader}/root{SERIAL}")
+            tmp = link.with_name(".serial0.tmp")
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            tmp.symlink_to(name)
+            tmp.replace(link)
+            self.leader, self.where = leader, name
+            return name
+
+    def unplug(self) -> None:
+        with self.lock:
+            with contextlib.suppress(FileNotFoundError):
+                Path(f"/proc/{self.leader}/root{SERIAL}").unlink()
+            master, slave = os.openpty()  # a terminal nobody reads: the board talks into the void
+            os.set_blocking(master, False)
+            self._swap(master, slave)
+            self.where = ""
+
+    def pose(self) -> str:
+        x, y, theta = self.sim.world.pose
+        return f"{x:.6f} {y:.6f} {theta:.6f}"
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+# ---------------------------------------------------------------------------------------- supervisor
+
+def nspawn_command(state: State, cache: Path, name: str) -> list[str]:
+    return ["systemd-nspawn", "--register=no", "--keep-unit", "--boot", f"--machine={name}",
+            f"--directory={state.root}", "--console=read-only",
+            # nspawn's system call filter allows mlock() only to a box with CAP_IPC_LOCK; a Pi
+            # allows it within RLIMIT_MEMLOCK (Zenoh's shared memory locks its segments, hwbridge's
+            # cycle its memory). The services, run as icefloe, do not get the capability itself.
+            "--capability=CAP_IPC_LOCK",
+            f"--bind={cache / 'pip'}:{BOX_PIP}", f"--bind={cache / 'apt'}:{BOX_APT}",
+            f"--bind-ro={cache / 'wheels'}:{BOX_WHEELS}"]
+
+
+def container_init(nspawn_pid: int, timeout: float = 60.0) -> int:
+    """PID (on the host) of the box's systemd: the first ``systemd`` below systemd-nspawn."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        todo = [nspawn_pid]
+        while todo:
+            pid = todo.pop()
+            with contextlib.suppress(OSError):
+                if pid != nspawn_pid and Path(f"/proc/{pid}/comm").read_text().strip() == "systemd":
+                    return pid
+                for task in Path(f"/proc/{pid}/task").iterdir():
+                    todo += [int(c) for c in (task / "children").read_text().split()]
+        time.sleep(0.1)
+    raise BoxError(f"the box's systemd did not start within {timeout:.0f} s")
+
+
+class Supervisor:
+    """Runs the box (systemd-nspawn, again after each reboot) and the board; answers on a socket."""
+
+    def __init__(self, state: State, cache: Path, name: str) -> None:
+        self.state, self.cache, self.name = state, cache, name
+        self.board = Board(state)
+        self.nspawn: subprocess.Popen[bytes] | None = None
+        self.stopping = False
+        self.boots = 0
+
+    def serve(self) -> int:
+        with contextlib.suppress(FileNotFoundError):
+            self.state.sock.unlink()
+        server = socket.socket(socket.AF_UNIX)
+        server.bind(str(self.state.sock))
+        os.chmod(self.state.sock, 0o600)
+        server.listen(8)
+        threading.Thread(target=self._accept, args=(server,), daemon=True).start()
+        signal.signal(signal.SIGTERM, lambda *_: self.stop())
+        signal.signal(signal.SIGINT, lambda *_: self.stop())
+        status = 0
+        try:
+            while not self.stopping:
+                status = self._boot_once()
+                if status != REBOOT_STATUS:
+                    break
+                say("the box rebooted")
+        finally:
+            self.board.close()
+            server.close()
+            self.state.write(leader=0, running=False, status=status)
+        return status
+
+    def _boot_once(self) -> int:
+        with self.state.console.open("ab") as console:
+            self.nspawn = subprocess.Popen(nspawn_command(self.state, self.cache, self.name),
+                                           stdin=subprocess.DEVNULL, stdout=console, stderr=console)
+            try:
+                leader = container_init(self.nspawn.pid)
+                self.boots += 1
+                self.state.write(leader=leader, boots=self.boots, running=True, nspawn=self.nspawn.pid)
+                # The box's /dev is made at each boot: wait for it, then plug the board in.
+                deadline = time.monotonic() + 30
+                while not Path(f"/proc/{leader}/root/dev/pts/ptmx").exists() and time.monotonic() < deadline:
+                    time.sleep(0.05)
+                self.board.plug(leader)
+            except BoxError as exc:
+                say(str(exc))
+                self.nspawn.terminate()
+            return self.nspawn.wait()
+
+    def stop(self) -> None:
+        self.stopping = True
+        if self.nspawn is not None and self.nspawn.poll() is None:
+            self.nspawn.terminate()  # nspawn asks the box's systemd to power off
+
+    def _accept(self, server: socket.socket) -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            with conn:
+                try:
+                    line = conn.makefile().readline().split()
+                    reply = self.handle(line)
+                except Exception as exc:  # any failure is the client's answer
+                    reply = f"error {exc}"
+                with contextlib.suppress(OSError):
+                    conn.sendall(reply.encode() + b"\n")
+
+    def handle(self, words: list[str]) -> str:
+        """``pose`` (x y theta, m and rad: the simulator's truth), ``unplug``, ``plug``, ``stop``."""
+        match words:
+            case ["pose"]:
+                return self.board.pose()
+            case ["unplug"]:
+                self.board.unplug()
+                return "unplugged"
+            case ["plug"]:
+                return "plugged " + self.board.plug(self.state.read()["leader"])
+            case ["stop"]:
+                self.stop()
+                return "stopping"
+        return f"error unknown request {' '.join(words)!r}: pose, unplug, plug, stop"
+
+
+# ---------------------------------------------------------------------------------------- commands
+
+def leader_of(state: State) -> int:
+    info = state.read()
+    leader = int(info.get("leader") or 0)
+    if not leader or not Path(f"/proc/{leader}").exists():
+        raise BoxError(f"no box is running in {state.dir}: deploy/box.sh up")
+    return leader
+
+
+def inside(state: State, command: str, user: str = "root", check: bool = False,
+           capture: bool = False, timeout: float | None = None) -> subprocess.CompletedProcess[str]:
+    """Run a shell command in the box, as ``user`` in a login shell (as over ssh)."""
+    leader = leader_of(state)
+    login = ["runuser", "-l", user, "-c", command] if user != "root" else ["bash", "-lc", command]
+    argv = ["nsenter", f"--target={leader}", "--mount", "--uts", "--ipc", "--pid", "--",
+            "env", "-i", f"PATH={PATH}", "LANG=C.UTF-8", "TERM=dumb", *login]
+    result = subprocess.run(argv, text=True, capture_output=capture, timeout=timeout, check=False)
+    if check and result.returncode != 0:
+        detail = f": {(result.stderr or result.stdout).strip()[-2000:]}" if capture else ""
+        raise BoxError(f"in the box, as {user}: `{command}` exited {result.returncode}{detail}")
+    return result
+
+
+def wait_booted(state: State, timeout: float = 120.0) -> None:
+    """Until the box's systemd has finished starting (running, or degraded: a unit failed)."""
+    deadline = time.monotonic() + timeout
+    last = ""
+    while time.monotonic() < deadline:
+        info = state.read()
+        if info.get("running") is False:
+            raise BoxError(f"the box stopped (status {info.get('status')}): see {state.console}")
+        if info.get("leader"):
+            with contextlib.suppress(BoxError, subprocess.TimeoutExpired):
+                r = inside(state, "systemctl is-system-running", capture=True, timeout=20)
+                last = r.stdout.strip()
+                if last in ("running", "degraded"):
+                    return
+        time.sleep(0.5)
+    raise BoxError(f"the box did not finish booting within {timeout:.0f} s (systemd: {last or '?'}); "
+                   f"see {state.console}")
+
+
+def port_free(port: int) -> bool:
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("0.0.0.0", port))
+        except OSError:
+            return False
+    return True
+
+
+def robot_ports(robot: str) -> list[int]:
+    """The TCP ports the robot's router and web API take on this machine (the box shares its network)."""
+    from icefloe import config as config_mod
+
+    cfg = config_mod.load(robot)
+    ports = [int(e.rsplit(":", 1)[1]) for e in cfg.zenoh.listen if e.startswith("tcp/")]
+    return [*ports, cfg.webapi.port]
+
+
+def mount_overlay(state: State, lower: Path) -> None:
+    for d in (state.upper, state.work, state.root):
+        d.mkdir(parents=True, exist_ok=True)
+    if os.path.ismount(state.root):
+        return
+    opts = f"lowerdir={lower},upperdir={state.upper},workdir={state.work}"
+    r = subprocess.run(["mount", "-t", "overlay", "overlay", "-o", opts, str(state.root)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise BoxError(f"cannot mount the box's copy of {lower} (overlay): {r.stderr.strip()}")
+
+
+def cmd_up(args: argparse.Namespace, state: State) -> int:
+    if state.read().get("running") and Path(f"/proc/{state.read().get('leader', 0)}").exists():
+        raise BoxError(f"a box is already running in {state.dir}: deploy/box.sh down first")
+    busy = [p for p in robot_ports(args.robot) if not port_free(p)]
+    if busy:
+        raise BoxError(f"port {', '.join(map(str, busy))} on this machine is in use, and the box shares "
+                       f"this machine's network: stop what uses it (a robot running here?) and try again")
+    lower = build(args.cache, args.arch)
+    wheelhouse(args.repo, args.cache / "wheels")
+    shutil.rmtree(state.dir, ignore_errors=True)
+    state.dir.mkdir(parents=True, mode=0o700)
+    for cache in ("pip", "apt", "wheels"):
+        (args.cache / cache).mkdir(exist_ok=True)
+    (args.cache / "apt" / "partial").mkdir(exist_ok=True)
+    # pi and root both fill the pip cache: let either use what the other put there
+    subprocess.run(["chmod", "-R", "a+rwX", str(args.cache / "pip")], check=False)
+    mount_overlay(state, lower)
+    # Box infrastructure (not the robot's): where pip and apt keep what they downloaded; apt keeps
+    # its downloads (Debian's docker-clean rule would delete them); the repository as a bundle.
+    (state.root / "etc/pip.conf").write_text(f"[global]\ncache-dir = {BOX_PIP}\nfind-links = {BOX_WHEELS}\n")
+    (state.root / "etc/apt/apt.conf.d/99icefloe-box").write_text('Binary::apt::APT::Keep-Downloaded-Packages "true";\n')
+    # Raspberry Pi OS names the machine in /etc/hosts (sudo looks its name up); so does the box
+    (state.root / "etc/hosts").write_text(f"127.0.0.1\tlocalhost\n::1\t\tlocalhost ip6-localhost ip6-loopback\n"
+                                          f"127.0.1.1\traspberrypi {args.name}\n")
+    bundle = state.root / "var/tmp/icefloe.bundle"
+    r = subprocess.run(["git", "-C", str(args.repo), "bundle", "create", str(bundle), args.rev],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise BoxError(f"cannot bundle {args.repo} at {args.rev}: {r.stderr.strip()}")
+    state.write(name=args.name, cache=str(args.cache), arch=args.arch, robot=args.robot, running=False,
+                rev=subprocess.run(["git", "-C", str(args.repo), "rev-parse", args.rev],
+                                   capture_output=True, text=True).stdout.strip())
+    start = time.monotonic()
+    log = (state.dir / "supervisor.log").open("ab")
+    subprocess.Popen([sys.executable, __file__, "--dir", str(state.dir), "--cache", str(args.cache),
+                      "--name", args.name, "serve"],
+                     stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True, cwd=REPO)
+    deadline = time.monotonic() + 60
+    while not state.read().get("leader"):
+        if time.monotonic() > deadline:
+            raise BoxError(f"the box did not start: see {state.dir / 'supervisor.log'}")
+        time.sleep(0.2)
+    wait_booted(state)
+    say(f"booted in {time.monotonic() - start:.0f} s ({state.dir})")
+    make_pi(state)
+    if not args.no_install:
+        install(state, args.robot)
+    return 0
+
+
+def make_pi(state: State) -> None:
+    """What a Raspberry Pi's first boot makes: the user pi (home 0700, Debian's default), in sudo; and
+    the repository cloned into its home, as the TA does (from a bundle of the checkout's commit)."""
+    inside(state, "id -u pi >/dev/null 2>&1 || adduser --disabled-password --gecos '' pi >/dev/null && "
+                  "usermod -aG sudo,dialout,video pi && "
+                  # Box infrastructure: the TA would type pi's password to sudo.
+                  "echo 'pi ALL=(ALL) NOPASSWD: ALL' > /etc/sudoers.d/010_pi-nopasswd && "
+                  "chmod 0440 /etc/sudoers.d/010_pi-nopasswd && chmod 0700 /home/pi", check=True, capture=True)
+    inside(state, "test -d icefloe || git -c advice.detachedHead=false clone -q /var/tmp/icefloe.bundle icefloe",
+           user="pi", check=True, capture=True)
+    say("user pi (home 0700, sudo) with the repository in /home/pi/icefloe")
+
+
+INSTALL = "./deploy/up.sh {robot} --install --no-boot-config"
+"""The install as the TA runs it on a Pi, with the box's explicit differences (docs/box.md)."""
+
+
+def install(state: State, robot: str) -> None:
+    start = time.monotonic()
+    command = INSTALL.format(robot=robot)
+    say(f"as pi in ~/icefloe: {command}")
+    r = inside(state, f"cd ~/icefloe && {command}", user="pi", capture=True)
+    (state.dir / "install.log").write_text(r.stdout + r.stderr)
+    if r.returncode != 0:
+        tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-15:])
+        raise BoxError(f"the install failed (exit {r.returncode}; {state.dir / 'install.log'}):\n{tail}")
+    say(f"installed in {time.monotonic() - start:.0f} s")
+    copy_credentials(state, robot)
+
+
+def copy_credentials(state: State, robot: str) -> Path | None:
+    """The robot's credentials file, copied out (0600) as the TA hands it to whoever drives the robot."""
+    src = state.root / f"etc/icefloe/{robot}.credentials"
+    if not src.exists():
+        return None
+    dst = state.dir / f"{robot}.credentials"
+    shutil.copy(src, dst)
+    os.chmod(dst, 0o600)
+    say(f"the owner's credentials: {dst}  (icefloe status --credentials {dst})")
+    return dst
+
+
+def cmd_down(state: State) -> int:
+    info = state.read()
+    if info.get("running"):
+        with contextlib.suppress(BoxError):
+            ask(state, "stop")
+        deadline = time.monotonic() + 60
+        while state.read().get("running") and time.monotonic() < deadline:
+            time.sleep(0.2)
+        if state.read().get("running"):
+            raise BoxError(f"the box did not power off within 60 s: see {state.console}")
+    if os.path.ismount(state.root):
+        subprocess.run(["umount", str(state.root)], check=False)
+    shutil.rmtree(state.dir, ignore_errors=True)
+    say(f"box in {state.dir} powered off and removed")
+    return 0
+
+
+def cmd_reboot(state: State) -> int:
+    boots = state.read().get("boots", 0)
+    inside(state, "systemctl reboot", capture=True)
+    deadline = time.monotonic() + 120
+    while state.read().get("boots", 0) == boots:
+        if time.monotonic() > deadline or state.read().get("running") is False:
+            raise BoxError(f"the box did not come back from the reboot: see {state.console}")
+        time.sleep(0.2)
+    wait_booted(state)
+    say("rebooted")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="deploy/box.sh", description=__doc__.split("\n\n")[0])
+    p.add_argument("--cache", type=Path, default=Path(os.environ.get("ICEFLOE_BOX_CACHE", "/var/cache/icefloe/box")),
+                   help="where the built root and the pip/apt caches live (default /var/cache/icefloe/box, "
+                        "or $ICEFLOE_BOX_CACHE)")
+    p.add_argument("--dir", type=Path, default=Path(os.environ.get("ICEFLOE_BOX_DIR", "/var/tmp/icefloe-box")),
+                   help="the running box's folder: its copy of the root, logs, credentials "
+                        "(default /var/tmp/icefloe-box, or $ICEFLOE_BOX_DIR)")
+    p.add_argument("--arch", default="amd64", choices=["amd64", "arm64"],
+                   help="the box's architecture (arm64: emulated by qemu-user-static, slow)")
+    p.add_argument("--name", default="icefloe-box", help="the box's machine name")
+    sub = p.add_subparsers(dest="command")
+    up = sub.add_parser("up", help="boot a fresh box and install the robot as pi (the default)")
+    up.add_argument("--repo", type=Path, default=REPO, help="the repository to clone into the box (default: this one)")
+    up.add_argument("--rev", default="HEAD", help="its commit to clone (default HEAD: committed work only)")
+    up.add_argument("--robot", default="penguin1", help="the robot config to install (default penguin1)")
+    up.add_argument("--no-install", action="store_true", help="stop after making pi and cloning the repository")
+    sub.add_parser("build", help="make the cached root (if missing)").add_argument(
+        "--rebuild", action="store_true", help="make it again even if it exists")
+    inst = sub.add_parser("install", help="run the install as pi again")
+    inst.add_argument("--robot", default="penguin1", help="the robot config (default penguin1)")
+    ex = sub.add_parser("exec", help="run a shell command in the box")
+    ex.add_argument("--user", default="root", help="as this user, in a login shell (default root)")
+    ex.add_argument("cmd", nargs=argparse.REMAINDER, help="the command (after --)")
+    bd = sub.add_parser("board", help="the board outside the box")
+    bd.add_argument("action", choices=["pose", "unplug", "plug"],
+                    help="pose: the simulator's truth (x y theta, m, rad); unplug/plug the serial line")
+    sub.add_parser("reboot", help="reboot the box (systemctl reboot inside) and wait until it is up")
+    sub.add_parser("down", help="power the box off and throw its copy away")
+    sub.add_parser("serve", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    args.cache = args.cache.resolve()
+    state = State(args.dir.resolve())
+    try:
+        if os.geteuid() != 0:
+            raise BoxError("run as root (sudo deploy/box.sh): booting a box needs it")
+        match args.command:
+            case "build":
+                build(args.cache, args.arch, args.rebuild)
+                return 0
+            case "serve":
+                return Supervisor(state, args.cache, args.name).serve()
+            case "up" | None:
+                if args.command is None:
+                    args = p.parse_args([*(argv or sys.argv[1:]), "up"])
+                    args.cache = args.cache.resolve()
+                return cmd_up(args, state)
+            case "install":
+                install(state, args.robot)
+                return 0
+            case "exec":
+                cmd = args.cmd[1:] if args.cmd[:1] == ["--"] else args.cmd
+                return inside(state, shlex.join(cmd) if len(cmd) > 1 else "".join(cmd), user=args.user).returncode
+            case "board":
+                print(ask(state, args.action))
+                return 0
+            case "reboot":
+                return cmd_reboot(state)
+            case "down":
+                return cmd_down(state)
+    except BoxError as exc:
+        print(f"box: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
