@@ -11,6 +11,7 @@
     gateware.py    gateware build, pins                the icoBoard's FPGA design
     snapshot.py    snapshot                            save a frame of the robot's camera
     calibrate.py   calibrate                           calibrate the robot's camera
+    score.py       score map, score path               a map or a trajectory against the truth
     scaffold.py    new-service                         a service of your own, ready to run and test
     completion.py  completion                          shell completion (argcomplete)
 
@@ -32,7 +33,7 @@ import argcomplete
 from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
 VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
-                "scaffold", "completion")
+                "score", "scaffold", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\
