@@ -21,6 +21,7 @@ takes the time it was recorded).
 from __future__ import annotations
 
 import csv
+import json
 import math
 from pathlib import Path
 from typing import Annotated, Any
@@ -123,7 +124,11 @@ def decode_file(path: Path, data: bytes) -> Any:
         try:
             return msgspec.json.decode(data)
         except msgspec.DecodeError as exc:
-            raise BadInput(f"{path}: not valid JSON: {exc}") from None
+            error = exc
+        try:  # Python's json writes a NaN as NaN, which JSON has not: read it, to name the marker
+            return json.loads(data)
+        except (ValueError, RecursionError):
+            raise BadInput(f"{path}: not valid JSON: {error}") from None
     try:
         return msgspec.msgpack.decode(data)
     except msgspec.DecodeError:

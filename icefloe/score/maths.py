@@ -176,9 +176,9 @@ def associate(est_t: np.ndarray, true_t: np.ndarray, max_dt: float) -> tuple[np.
     # One estimate per true pose: the nearest (sort by true index, then by dt; keep the first of each).
     order = np.lexsort((dt[i], j))
     i, j = i[order], j[order]
-    first = np.append(True, j[1:] != j[:-1])
-    i, j = i[first], j[first]
-    return i, j
+    first = np.append(True, j[1:] != j[:-1]) if len(j) else np.zeros(0, bool)
+    keep = np.sort(i[first])  # in time order
+    return keep, nearest[keep]
 
 
 @dataclass(frozen=True)
