@@ -233,13 +233,25 @@ def positive(text: str) -> float:
     return value
 
 
+def add_key_option(parser: argparse.ArgumentParser, flag: str, help_: str, default: str | None = None) -> None:
+    action = parser.add_argument(flag, default=default, metavar="KEY", help=help_)
+    action.completer = key_names  # type: ignore[attr-defined]
+
+
+def add_common(parser: argparse.ArgumentParser) -> None:
+    """The options both verbs share: the alignment, --json, and the bus (for keys)."""
+    parser.add_argument("--align", choices=ALIGNMENTS, default="rigid",
+                        help="how the estimate is aligned to the truth first: rigid (rotation + translation, as "
+                        "ECE4078's SLAM_eval.py), similarity (and scale), none (default rigid)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object (for scripts)")
+    add_bus_arguments(parser)
+
+
 def register(verbs: argparse._SubParsersAction) -> None:
     p = verbs.add_parser("score", help="score a landmark map or a trajectory against the truth",
                          description="Score a landmark map against the world's markers, or a pose trajectory "
                          "against the simulator's truth or an external localizer (docs/score.md).")
     score_verbs = p.add_subparsers(dest="score_verb", required=True, metavar="VERB", help="map, path")
-    align_help = ("how the estimate is aligned to the truth first: rigid (rotation + translation, as ECE4078's "
-                  "SLAM_eval.py), similarity (and scale), none (default rigid)")
 
     q = score_verbs.add_parser(
         "map", help="a landmark map against the world's true markers: RMSE after alignment, per marker",
@@ -250,13 +262,10 @@ def register(verbs: argparse._SubParsersAction) -> None:
     q.add_argument("map", metavar="MAP", help="slam.txt, map.json, run.mcap, or a bus key (slam/map)")
     q.add_argument("--world", required=True, metavar="WORLD",
                    help="the true markers: a world (lab, or a .toml file) or ECE4078's true map (a JSON file)")
-    q.add_argument("--align", choices=ALIGNMENTS, default="rigid", help=align_help)
-    key = q.add_argument("--key", metavar="KEY", help="in a recording: the map's key (default: the one key with maps)")
-    key.completer = key_names  # type: ignore[attr-defined]
+    add_key_option(q, "--key", "in a recording: the map's key (default: the one key with maps)")
     q.add_argument("--timeout", type=positive, default=10.0, metavar="S",
                    help="a bus key: wait this long for a sample (default 10)")
-    q.add_argument("--json", action="store_true", help="print one JSON object (for scripts)")
-    add_bus_arguments(q)
+    add_common(q)
     q.set_defaults(run=map_verb)
 
     q = score_verbs.add_parser(
@@ -268,19 +277,13 @@ def register(verbs: argparse._SubParsersAction) -> None:
     q.add_argument("traj", metavar="TRAJ", help="traj.csv, run.mcap, or a bus key (loc/pose)")
     q.add_argument("--truth", required=True, metavar="TRUTH",
                    help="truth.csv, run.mcap, or a bus key (sim/truth, an external localizer's pose key)")
-    key = q.add_argument("--key", default="loc/pose", metavar="KEY",
-                         help="in a recording TRAJ: the poses' key (default loc/pose)")
-    key.completer = key_names  # type: ignore[attr-defined]
-    key = q.add_argument("--truth-key", default="sim/truth", metavar="KEY",
-                         help="in a recording TRUTH: the true poses' key (default sim/truth)")
-    key.completer = key_names  # type: ignore[attr-defined]
+    add_key_option(q, "--key", "in a recording TRAJ: the poses' key (default loc/pose)", "loc/pose")
+    add_key_option(q, "--truth-key", "in a recording TRUTH: the true poses' key (default sim/truth)", "sim/truth")
     q.add_argument("--max-dt", type=positive, default=0.02, metavar="S",
                    help="associate poses at most S seconds apart (default 0.02: one period of sim/truth)")
-    q.add_argument("--align", choices=ALIGNMENTS, default="rigid", help=align_help)
     q.add_argument("--segment", type=positive, default=1.0, metavar="M",
                    help="RPE over segments of M metres of the true path (default 1)")
     q.add_argument("--duration", type=positive, default=30.0, metavar="S",
                    help="bus keys: collect for S seconds (default 30; Ctrl-C scores what came so far)")
-    q.add_argument("--json", action="store_true", help="print one JSON object (for scripts)")
-    add_bus_arguments(q)
+    add_common(q)
     q.set_defaults(run=path_verb)
