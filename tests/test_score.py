@@ -174,7 +174,7 @@ def test_true_maps_bad_ones_and_a_world_that_does_not_exist(tmp_path: Path) -> N
 
 def test_a_map_in_a_recording_the_last_one_on_its_key(tmp_path: Path) -> None:
     """A map key is outside the key table (a raw channel); camera/landmarks, with its own
-    `landmarks` list, is not taken for a map."""
+    `landmarks` list, is not taken for a map, nor a bad sample after the last map."""
     path = tmp_path / "maps.mcap"
     first = {"landmarks": [{"id": 0, "x": 5.0, "y": 5.0}]}
     last = {"stamp": 2, "landmarks": [{"id": i, "x": x, "y": y} for i, (x, y) in LAB.items()]}
@@ -183,12 +183,17 @@ def test_a_map_in_a_recording_the_last_one_on_its_key(tmp_path: Path) -> None:
         m.Landmark(id=3, range=1.0, bearing=0.1)])), codec.MSGPACK, 1)
     w.write("icefloe/sim/slam/map", json.dumps(first).encode(), codec.JSON, 2)
     w.write("icefloe/sim/slam/map", msgspec.msgpack.encode(last), codec.MSGPACK, 3)
+    w.write("icefloe/sim/slam/map", b"\xc1", codec.MSGPACK, 4)
+    w.write("icefloe/sim/slam/map", b'{"hello": 1}', codec.JSON, 5)
+    w.write("icefloe/sim/other", b'{"x": 1}', codec.JSON, 6)
     w.close()
     points, where = inputs.read_map(str(path))
     assert points == LAB and "icefloe/sim/slam/map" in where
     assert inputs.read_map(str(path), "slam/map")[0] == LAB
     with pytest.raises(BadRecording, match="no messages on odom/pose"):
         inputs.read_map(str(path), "odom/pose")
+    with pytest.raises(inputs.BadInput, match="no landmark map on icefloe/sim/other"):
+        inputs.read_map(str(path), "other")
     empty = tmp_path / "none.mcap"
     w = BagWriter(empty)
     w.write("icefloe/sim/odom/pose", codec.encode(m.Pose(stamp=1, x=0, y=0, theta=0)), codec.MSGPACK, 1)
@@ -305,9 +310,10 @@ def test_a_bad_csv_is_one_error_naming_the_file(tmp_path: Path, content: str, er
     assert str(exc.value).startswith(path) and error in str(exc.value), exc.value
 
 
-def test_poses_in_a_recording_any_key_with_x_y_theta_and_a_stamp(tmp_path: Path) -> None:
+def test_poses_in_a_recording_any_key_with_x_y_theta_and_a_stamp(tmp_path: Path, caplog) -> None:
     """loc/pose (typed) and an external localizer's key outside the key table (raw, JSON); a
-    message without a stamp takes the time it was recorded."""
+    message without a stamp takes the time it was recorded; a message that is no pose is skipped,
+    with one warning."""
     path = tmp_path / "run.mcap"
     w = BagWriter(path)
     for k in range(5):
@@ -316,14 +322,19 @@ def test_poses_in_a_recording_any_key_with_x_y_theta_and_a_stamp(tmp_path: Path)
                                                                     covariance=[0.0] * 9)), codec.MSGPACK, stamp)
         w.write("icefloe/sim/extloc/pose", json.dumps({"x": k * 0.1, "y": 0.0, "theta": 0.0}).encode(),
                 codec.JSON, stamp + 1000)
+    w.write("icefloe/sim/loc/pose", b"\xc1 not a pose", codec.MSGPACK, 1_050_000_000)  # a raw channel, same key
     w.write("icefloe/sim/bad/pose", json.dumps({"x": 1.0, "y": 0.0}).encode(), codec.JSON, 1)
     w.close()
     loc, where = inputs.read_trajectory(str(path), "loc/pose")
     assert len(loc) == 5 and loc.t[0] == pytest.approx(1.0) and "icefloe/sim/loc/pose" in where
+    assert [r.getMessage() for r in caplog.records] == [
+        f"{path}: icefloe/sim/loc/pose: a message does not decode: MessagePack data is malformed: invalid opcode "
+        "'\\xc1' (byte 0) (1 message skipped)"]
     ext, _ = inputs.read_trajectory(str(path), "extloc/pose")
     assert ext.t[1] == pytest.approx(1.020001)
     assert score_path(loc, ext).ate_rmse < 1e-12
-    with pytest.raises(inputs.BadInput, match="bad/pose: a message has no 'theta'"):
+    with pytest.raises(inputs.BadInput, match="bad/pose: no poses"):
         inputs.read_trajectory(str(path), "icefloe/sim/bad/pose")
+    assert "bad/pose: a message has no 'theta'" in caplog.records[-1].getMessage()
     with pytest.raises(BadRecording, match=r"no messages on sim/truth \(it has icefloe/sim/bad/pose"):
         inputs.read_trajectory(str(path), "sim/truth")

@@ -118,7 +118,8 @@ async def publish_map(node, key: str, payload: bytes) -> None:
 @pytest.mark.slow
 async def test_scores_of_a_live_robot_and_of_its_recording(robot: Robot) -> None:
     """The simulated robot drives; odometry is scored against sim/truth live (ended with Ctrl-C) and
-    from a recording of both by ``icefloe record``; a map published on a key outside the key table
+    from a recording of both by ``icefloe record``, a bad sample on sim/truth skipped by both; a map
+    published on a key outside the key table
     (marker 1 moved 5 cm outwards: RMSE 0.05 sqrt(11) / 12 after a rigid alignment, see test_score.py)
     is scored live (one sample) and from the recording (its last map)."""
     expected = 0.05 * math.sqrt(11) / 12
@@ -141,6 +142,7 @@ async def test_scores_of_a_live_robot_and_of_its_recording(robot: Robot) -> None
         assert status == 0, err
         live_map = json.loads(text)
         twist = node.publisher(keys.TWIST)
+        node.session.put(f"icefloe/{robot.name}/sim/truth", b"\xc1 not a pose", encoding=codec.MSGPACK)  # hostile
         for v, w, seconds in ((0.25, 0.0, 2.0), (0.15, 1.0, 1.5)):
             for _ in range(round(seconds / 0.05)):
                 twist.put(m.Twist(v=v, w=w))
@@ -161,6 +163,9 @@ async def test_scores_of_a_live_robot_and_of_its_recording(robot: Robot) -> None
                                       "--segment", "0.2", "--json")
     assert status == 0, err
     recorded_path = json.loads(text)
+    # The bad sample: skipped with one line, live and recorded.
+    assert "sim/truth: a sample does not decode" in live.output and "(skipped)" in live.output
+    assert err.count("\n") == 1 and "sim/truth: a message does not decode" in err and "(1 message skipped)" in err
     status, text, err = await icefloe("score", "map", str(out), "--world", "lab", "--json")
     assert status == 0, err
     recorded_map = json.loads(text)

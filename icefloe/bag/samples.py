@@ -42,8 +42,6 @@ def find_key(bag: Bag, name: str) -> str:
     raise BadRecording(f"{where}: no messages on {name} (it has {listed})")
 
 
-def messages(bag: Bag, key: str) -> Iterator[tuple[int, object]]:
-    """(log time ns, plain data) of every message on ``key`` (a full bus key), in the file's order."""
-    for entry in bag.entries():
-        if entry.channel.key == key:
-            yield entry.log_time, plain(entry)
+def entries_on(bag: Bag, key: str) -> Iterator[Entry]:
+    """Every message on ``key`` (a full bus key), in the file's order (`plain` decodes one)."""
+    return (entry for entry in bag.entries() if entry.channel.key == key)

@@ -18,14 +18,17 @@ from pathlib import Path
 from typing import Any
 
 from ..config import RobotConfig
-from ..errors import BadPayload, IcefloeError
+from ..errors import IcefloeError
 from ..runtime import RawSample, run_async
 from ..schemas import codec
 from ..score import inputs
 from ..score.maths import ALIGNMENTS, NotEnough, PathScore, Trajectory, score_map, score_path
 from .common import add_bus_arguments, bus_config, check_robot, cli_node, key_names, resolve_key, warn
+from .record import warnings_to_stderr
 
 FILE_SUFFIXES = {".txt", ".json", ".msgpack", ".mcap", ".csv", ".toml"}
+MAX_LIVE_POSES = 1_000_000
+"""Poses kept of a live key at most (5.5 hours at 50 Hz): a flood fills no more memory than that."""
 
 
 def is_file(source: str) -> bool:
@@ -57,13 +60,13 @@ async def first_sample(args: argparse.Namespace, key: str) -> RawSample:
 def decoded(raw: RawSample) -> Any:
     try:
         return codec.to_builtins(raw.payload, raw.encoding)
-    except (BadPayload, Exception) as exc:  # msgspec.DecodeError, an unknown encoding
+    except Exception as exc:  # msgspec.DecodeError, BadPayload (an unknown encoding)
         raise inputs.BadInput(f"{raw.key}: a sample does not decode: {exc}") from None
 
 
 async def collect(args: argparse.Namespace, live: list[str]) -> dict[str, list[tuple[float, float, float, float]]]:
-    """Poses on each live key for ``args.duration`` s, or until Ctrl-C; a sample that is no pose
-    is skipped with one line (the first of each key)."""
+    """Poses on each live key for ``args.duration`` s, or until Ctrl-C, or `MAX_LIVE_POSES` of one
+    key; a sample that is no pose is skipped, with one line for the first of each key."""
     config = bus_config(args)
     rows: dict[str, list[tuple[float, float, float, float]]] = {k: [] for k in live}
     bad: set[str] = set()
@@ -72,6 +75,10 @@ async def collect(args: argparse.Namespace, live: list[str]) -> dict[str, list[t
 
     async def take(sub: Any, key: str) -> None:
         async for raw in sub:
+            if len(rows[key]) >= MAX_LIVE_POSES:
+                warn(f"{key}: {MAX_LIVE_POSES} poses: scoring these, the rest are not kept")
+                stop.set()
+                return
             try:
                 rows[key].append(inputs.pose_row(decoded(raw), time.time_ns(), raw.key))
             except inputs.BadInput as exc:
@@ -112,6 +119,7 @@ def read_map(args: argparse.Namespace) -> tuple[inputs.Points, str]:
 
 
 def map_verb(args: argparse.Namespace) -> int:
+    warnings_to_stderr()
     estimate, source = read_map(args)
     truth, truth_source = inputs.true_map(args.world)
     if not estimate:
@@ -181,6 +189,7 @@ def read_paths(args: argparse.Namespace) -> tuple[tuple[Trajectory, str], tuple[
 
 
 def path_verb(args: argparse.Namespace) -> int:
+    warnings_to_stderr()
     (est, est_source), (truth, truth_source) = read_paths(args)
     try:
         score = score_path(est, truth, max_dt=args.max_dt, kind=args.align, segment=args.segment)

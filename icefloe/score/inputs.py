@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 from pathlib import Path
 from typing import Annotated, Any
@@ -30,12 +31,13 @@ import msgspec
 
 from ..bag import Bag
 from ..bag.reader import MAGIC, Entry
-from ..bag.samples import find_key, messages, plain
-from ..errors import ConfigError, IcefloeError
+from ..bag.samples import entries_on, find_key, plain
+from ..errors import BadRecording, ConfigError, IcefloeError
 from ..worldmap import load_world
 from .maths import Trajectory
 
 Points = dict[int, tuple[float, float]]
+log = logging.getLogger("icefloe.score")
 MAX_FILE = 64_000_000
 """Bytes of a map or CSV file read at most (a map of thousands of landmarks is far smaller)."""
 
@@ -151,28 +153,37 @@ def looks_like_map(data: Any) -> bool:
     return "taglist" in data or (isinstance(marks, list) and all(isinstance(p, dict) and "x" in p for p in marks))
 
 
+def decodes(entry: Entry) -> Any:
+    """A message as plain data, or None if it does not decode (a bad sample on another key)."""
+    try:
+        return plain(entry)
+    except BadRecording:
+        return None
+
+
 def last_map_in(path: Path, key: str | None) -> tuple[Points, str]:
-    """The last landmark map of a recording, on ``key`` or on the one key that carries maps."""
+    """The last landmark map of a recording, on ``key`` or on the one key that carries maps; a
+    message that is no map (a bad sample) is passed over."""
     bag = Bag([path])
-    if key:
-        full = find_key(bag, key)
-        last = None
-        for _, data in messages(bag, full):
-            last = data
-        if last is None:
-            raise BadInput(f"{path}: no messages on {full}")
-        return map_points(last, f"{path}: {full}"), full
-    lasts: dict[str, Entry] = {}
-    for entry in bag.entries():
+    wanted = find_key(bag, key) if key else None
+    maps: dict[str, Any] = {}
+    others = 0
+    for entry in bag.entries() if wanted is None else entries_on(bag, wanted):
         # A map is a raw channel while the key table has no map message, and a typed one once it has.
         kind = entry.channel.type
-        if entry.channel.form == "raw" or (kind is not None and "Map" in kind.__name__):
-            lasts[entry.channel.key] = entry
-    found = {k: data for k, entry in lasts.items() if looks_like_map(data := plain(entry))}
-    if len(found) != 1:
-        what = f"maps on several keys ({', '.join(sorted(found))})" if found else "no landmark map"
+        if wanted is None and not (entry.channel.form == "raw" or (kind is not None and "Map" in kind.__name__)):
+            continue
+        data = decodes(entry)
+        if looks_like_map(data):
+            maps[entry.channel.key] = data
+        else:
+            others += 1
+    if wanted is not None and wanted not in maps:
+        raise BadInput(f"{path}: no landmark map on {wanted} ({others} messages, none a map)")
+    if len(maps) != 1:
+        what = f"maps on several keys ({', '.join(sorted(maps))})" if maps else "no landmark map"
         raise BadInput(f"{path}: {what}: --key KEY names the key")
-    (full, data), = found.items()
+    (full, data), = maps.items()
     return map_points(data, f"{path}: {full}"), full
 
 
@@ -274,7 +285,15 @@ def read_trajectory(source: str, key: str) -> tuple[Trajectory, str]:
         bag = Bag([path])
         full = find_key(bag, key)
         where = f"{path}: {full}"
-        rows = [pose_row(data, log_time, where) for log_time, data in messages(bag, full)]
+        rows, skipped, first = [], 0, ""
+        for entry in entries_on(bag, full):
+            try:
+                rows.append(pose_row(plain(entry), entry.log_time, where))
+            except (BadInput, BadRecording) as exc:  # a bad message in a run (a student's) spoils not the rest
+                skipped += 1
+                first = first or (str(exc) if isinstance(exc, BadInput) else f"{path}: {exc}")
+        if skipped:
+            log.warning("%s (%d message%s skipped)", first, skipped, "s" if skipped > 1 else "")
         return trajectory_of(rows, where), where
     if not path.is_file():
         raise BadInput(f"{path}: no such file")
