@@ -164,6 +164,12 @@ def test_an_empty_map_reads_as_empty_and_a_missing_file_names_itself(tmp_path: P
 
 def test_true_maps_bad_ones_and_a_world_that_does_not_exist(tmp_path: Path) -> None:
     assert inputs.true_map("lab")[0] == LAB
+    world = tmp_path / "mine.toml"  # a world file is a map too (the localizer's)
+    world.write_text("[[marker]]\nid = 4\nx = 1.0\ny = 2.0\nz = 0.1\nsize = 0.1\nyaw = 0.0\n")
+    assert inputs.read_map(str(world)) == ({4: (1.0, 2.0)}, "world mine")
+    world.write_text("[[marker]]\nid = 4\n")
+    with pytest.raises(inputs.BadInput, match=r"mine.toml: marker\[0\]"):
+        inputs.read_map(str(world))
     with pytest.raises(inputs.BadInput, match=r"aruco1_0: expected \{\"x\": number"):
         inputs.true_map(write(tmp_path, "t.txt", '{"aruco1_0": {"x": 1}}'))
     with pytest.raises(inputs.BadInput, match="no arucoN_0 markers"):

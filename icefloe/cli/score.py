@@ -266,9 +266,9 @@ def register(verbs: argparse._SubParsersAction) -> None:
         "map", help="a landmark map against the world's true markers: RMSE after alignment, per marker",
         description="A landmark map against the world's true markers: aligned (Umeyama), then the RMSE, each "
         "marker's error, the markers missed and the spurious ones. MAP is a file (ECE4078's slam.txt, or "
-        "icefloe's landmark map as JSON or MessagePack), a recording (the last map in it), or a bus key "
+        "icefloe's landmark map as JSON or MessagePack, a world file), a recording (the last map in it), or a bus key "
         "(one sample).")
-    q.add_argument("map", metavar="MAP", help="slam.txt, map.json, run.mcap, or a bus key (slam/map)")
+    q.add_argument("map", metavar="MAP", help="slam.txt, map.json, a world .toml, run.mcap, or a bus key (slam/map)")
     q.add_argument("--world", required=True, metavar="WORLD",
                    help="the true markers: a world (lab, or a .toml file) or ECE4078's true map (a JSON file)")
     add_key_option(q, "--key", "in a recording: the map's key (default: the one key with maps)")

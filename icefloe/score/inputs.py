@@ -4,6 +4,7 @@ Landmark maps (``MAP``), told apart by their content:
 
 * ECE4078's ``slam.txt``: JSON ``{"taglist": [id, ...], "map": [[x, ...], [y, ...]], ...}`` (the map
   2 x N, column i the marker taglist[i]; other fields, such as ``covariance``, are not read);
+* a world file (``.toml``, `icefloe.worldmap`): the map the localizer uses;
 * icefloe's landmark map (`LandmarkMap`), as JSON or MessagePack: ``{"stamp": ns, "landmarks":
   [{"id": 3, "x": 1.2, "y": -0.4, "covariance": [4 numbers, 2x2 row-major, m^2]}, ...]}``
   (``stamp`` and ``covariance`` optional) -- the same map as a bus message or in a recording.
@@ -194,6 +195,8 @@ def read_map(source: str, key: str | None = None) -> tuple[Points, str]:
     if is_recording(path):
         points, full = last_map_in(path, key)
         return points, f"{path} ({full}, the last map)"
+    if path.suffix == ".toml":  # a world file: the map the localizer uses
+        return world_points(str(path))
     return map_points(decode_file(path, read_bytes(path)), str(path)), str(path)
 
 
@@ -217,6 +220,11 @@ def true_map(world: str) -> tuple[Points, str]:
         if not points:
             raise BadInput(f"{path}: no arucoN_0 markers in this true map")
         return checked(points, str(path)), str(path)
+    return world_points(world)
+
+
+def world_points(world: str) -> tuple[Points, str]:
+    """The markers of a world file (`icefloe.worldmap`: a name or a .toml path)."""
     try:
         w = load_world(world)
     except ConfigError as exc:
