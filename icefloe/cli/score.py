@@ -170,20 +170,19 @@ def describe_alignment(a: Any) -> str:
 def read_paths(args: argparse.Namespace) -> tuple[tuple[Trajectory, str], tuple[Trajectory, str]]:
     sources = [(args.traj, args.key), (args.truth, args.truth_key)]
     out: list[tuple[Trajectory, str] | None] = [None, None]
-    live: dict[str, int] = {}
+    live: dict[int, str] = {}
     for n, (source, key) in enumerate(sources):
         if is_file(source):
             out[n] = inputs.read_trajectory(source, key)
         else:
-            robot = args.robot or bus_config(args).name
-            full = resolve_key(source, robot)
+            full = resolve_key(source, args.robot or bus_config(args).name)
             if "*" in full:
                 raise IcefloeError(f"{source}: a trajectory is read from one key, not a wildcard")
-            live[full] = n
+            live[n] = full
     if live:
-        rows = run_async(collect(args, list(live)))
-        for full, n in live.items():
-            out[n] = inputs.trajectory_of(rows[full], full), f"{full} (live, {args.duration:g} s)"
+        rows = run_async(collect(args, sorted(set(live.values()))))
+        for n, full in live.items():
+            out[n] = inputs.trajectory_of(rows[full], full), f"{full} (live)"
     assert out[0] is not None and out[1] is not None
     return out[0], out[1]
 
