@@ -122,6 +122,11 @@ def test_missing_files_and_trajectories_that_do_not_meet_are_one_line_each(main,
     assert f"{late} against {EXAMPLES}/truth.csv: 0 poses are within 0.02 s of a true pose" in err
     status, _, err = main("score", "path", str(late), "--truth", f"{EXAMPLES}/truth.csv", "--max-dt", "nan")
     assert status == 2 and "--max-dt: must be a positive number" in err
+    # A wildcard would read every robot's maps or poses as one: refused before any session opens.
+    status, _, err = main("score", "map", "icefloe/*/slam/map", "--world", "lab")
+    assert (status, err) == (2, "icefloe: icefloe/*/slam/map: one map is read from one key, not a wildcard\n")
+    status, _, err = main("score", "path", "loc/pose", "--truth", "icefloe/**", "--robot", "x")
+    assert (status, err) == (2, "icefloe: icefloe/**: a trajectory is read from one key, not a wildcard\n")
 
 
 # --------------------------------------------------------------------------- a real robot, live and recorded
