@@ -98,6 +98,9 @@ class Geometry(Section):
     """Distance between the wheels' contact points, m."""
     ticks_per_rev: Count = 384
     """Encoder counts per wheel turn."""
+    radius: Positive = 0.1
+    """Radius of a disc around the robot's centre that holds all of it, m (the simulator's
+    collisions with obstacles; the planner keeps its centre this far from them)."""
 
 
 class Hwbridge(Section):

@@ -84,6 +84,13 @@ ODOM_RESET = Topic("odom/reset", m.PoseReset, "query", reply=m.Pose)
 SNAPSHOT = Topic("camera/snapshot", m.Stop, "query", reply=m.Image, read_only=True)
 INFO = Topic("info", m.Stop, "query", reply=m.RobotInfo, read_only=True)
 SHUTDOWN_REQUEST = Topic("power/request", m.ShutdownRequest, "query", reply=m.ShutdownNotice)
+MAP_GRID = Topic("map/grid", m.GridRequest, "query", reply=m.OccupancyGrid, read_only=True)
+"""The world's occupancy grid (services/grid), inflated on request."""
+PLAN = Topic("nav/plan", m.PlanRequest, "query", reply=m.Plan)
+"""A path from start to goal on the grid (services/planner, or your own planner)."""
+NAV_PATH = Topic("nav/path", m.NavPath, "in")
+"""A path for the follower to drive (services/follower, or your own)."""
+NAV_STATUS = Topic("nav/status", m.FollowStatus, "out")
 
 TABLE: dict[str, Topic] = {
     t.name: t
@@ -93,6 +100,7 @@ TABLE: dict[str, Topic] = {
         WHEELS, LOOP, HW_BATTERY, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
         BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, TRUTH, SIM_GPIO,
         ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL,
+        MAP_GRID, PLAN, NAV_PATH, NAV_STATUS,
     )
 }  # fmt: skip
 
