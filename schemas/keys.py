@@ -75,6 +75,14 @@ LOG = Topic("log", m.Log, "out")
 CLOCK = Topic("clock", m.Clock, "out")
 """The time of a recording being replayed (published by ``icefloe replay --clock`` only)."""
 TRUTH = Topic("sim/truth", m.Truth, "out")
+MAP_LANDMARKS = Topic("map/landmarks", m.LandmarkMap, "out")
+"""The landmark map made with a known pose (services/mapper, or your own map maker)."""
+SLAM_POSE = Topic("slam/pose", m.PoseEstimate, "out")
+"""SLAM's pose of the robot, in SLAM's frame (services/slam, or your own)."""
+SLAM_MAP = Topic("slam/map", m.LandmarkMap, "out")
+"""SLAM's landmark map, in SLAM's frame (services/slam, or your own)."""
+EXTLOC_POSE = Topic("extloc/pose", m.Pose, "out")
+"""An external localizer's pose of the robot, world frame (motion capture, an overhead camera)."""
 SIM_GPIO = Topic("sim/gpio", m.GpioLevel, "out")
 """Simulated GPIO line levels; each line's driver publishes it (see `GpioLevel`)."""
 SIM_CONTROL = Topic("sim/control", m.SimControl, "query", reply=m.SimState)
@@ -101,6 +109,7 @@ TABLE: dict[str, Topic] = {
         BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, TRUTH, SIM_GPIO,
         ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL,
         MAP_GRID, PLAN, NAV_PATH, NAV_STATUS,
+        MAP_LANDMARKS, SLAM_POSE, SLAM_MAP, EXTLOC_POSE,
     )
 }  # fmt: skip
 

@@ -313,6 +313,39 @@ class Truth(Message):
     """Times the robot has run into an obstacle since the simulator started."""
 
 
+# --------------------------------------------------------------------------- maps of landmarks
+
+MAX_MAP_LANDMARKS = 1000
+"""Most landmarks in a `LandmarkMap` (ArUco's DICT_4X4_100 has 100)."""
+
+
+class MapLandmark(Message):
+    """One landmark of a `LandmarkMap`: its id and where the map puts it."""
+
+    id: Annotated[int, msgspec.Meta(ge=0)]
+    """ArUco id."""
+    x: float
+    """m, map frame."""
+    y: float
+    """m, map frame."""
+    covariance: Annotated[list[float], msgspec.Meta(max_length=4)] = []
+    """2x2 covariance of (x, y), row-major, 4 numbers, m^2 (empty = not known)."""
+
+
+class LandmarkMap(Message, kw_only=True):
+    """``map/landmarks`` (the map maker) and ``slam/map`` (SLAM): a map of landmarks, with how sure
+    each one is; also the file format `icefloe score map` reads.
+
+    ``map/landmarks`` is in the world frame of the pose it was made with; ``slam/map`` in SLAM's
+    own frame (the robot's pose when SLAM started), which `icefloe score` aligns to the world's.
+    """
+
+    stamp: int = 0
+    """ns since the Unix epoch: the last observation in the map."""
+    landmarks: Annotated[list[MapLandmark], msgspec.Meta(max_length=MAX_MAP_LANDMARKS)]
+    """By id, ascending."""
+
+
 # --------------------------------------------------------------------------- planning
 
 MAX_PATH_POINTS = 20_000

@@ -26,7 +26,7 @@ import json
 import logging
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import msgspec
 
@@ -34,6 +34,7 @@ from ..bag import Bag
 from ..bag.reader import MAGIC, Entry
 from ..bag.samples import entries_on, find_key, plain
 from ..errors import BadRecording, ConfigError, IcefloeError
+from ..schemas.messages import LandmarkMap
 from ..worldmap import load_world
 from .maths import Trajectory
 
@@ -45,27 +46,6 @@ MAX_FILE = 64_000_000
 
 class BadInput(IcefloeError):
     """A map or trajectory that cannot be scored; the message names the file or key and what is wrong."""
-
-
-class MapLandmark(msgspec.Struct, frozen=True):
-    """One landmark of a map: its id and where the map puts it."""
-
-    id: Annotated[int, msgspec.Meta(ge=0)]
-    """ArUco id."""
-    x: float
-    """m, map frame."""
-    y: float
-    """m, map frame."""
-    covariance: list[float] = []
-    """2x2 covariance of (x, y), row-major, 4 numbers, m^2 (optional)."""
-
-
-class LandmarkMap(msgspec.Struct, frozen=True):
-    """icefloe's landmark map: what a map maker or SLAM publishes, and a file of it."""
-
-    landmarks: list[MapLandmark]
-    stamp: int = 0
-    """ns since the Unix epoch."""
 
 
 class SlamTxt(msgspec.Struct, frozen=True):
@@ -90,6 +70,13 @@ def checked(points: list[tuple[int, float, float]], source: str) -> Points:
     return out
 
 
+def not_finite(landmarks: Any, source: str) -> None:
+    """BadInput naming the marker whose position is NaN or infinite (the schema refuses them too)."""
+    for p in landmarks if isinstance(landmarks, list) else ():
+        if isinstance(p, dict) and all(isinstance(p.get(k), int | float) for k in ("x", "y")):
+            checked([(p.get("id"), float(p["x"]), float(p["y"]))], source)
+
+
 def map_points(data: Any, source: str) -> Points:
     """The landmarks of a decoded map (a slam.txt or a `LandmarkMap`)."""
     try:
@@ -101,6 +88,7 @@ def map_points(data: Any, source: str) -> Points:
                                f"column per tag of `taglist`), not {shape}")
             return checked(list(zip(slam.taglist, *slam.map, strict=True)), source)
         if isinstance(data, dict) and "landmarks" in data:
+            not_finite(data["landmarks"], source)  # before the schema, which would not name the marker
             lm = msgspec.convert(data, LandmarkMap)
             return checked([(p.id, p.x, p.y) for p in lm.landmarks], source)
     except msgspec.ValidationError as exc:
