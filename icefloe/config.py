@@ -42,6 +42,8 @@ DEFAULT_ROBOT = "sim"
 """The robot a command means when none is named: the simulated one."""
 ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
 
+OPTIONAL_SERVICES = ("mapper", "slam")
+"""icefloe's services `icefloe up` starts only when ``services`` names them (docs/slam.md)."""
 
 # Value ranges, checked when a file is read: a bad value is a ConfigError naming its key
 # ("robot.toml: hwbridge.deadman_s: Expected `float` > 0.0") and nothing starts.
@@ -251,6 +253,39 @@ class Localizer(Section):
     showing >= 2 known markers (0 = never)."""
 
 
+class Mapper(Section):
+    """The reference map maker: landmark map from a known pose (services/mapper, docs/slam.md).
+    Its sighting noise is the localizer's (``[localizer]`` sigma_range, sigma_range_rel, sigma_bearing)."""
+
+    pose: Literal["extloc/pose", "sim/truth"] = "sim/truth"
+    """Where the known pose comes from: an external localizer (motion capture, an overhead
+    camera) on ``extloc/pose``, or the simulator's truth."""
+    pose_sigma_xy: NonNegative = 0.005
+    """How far off that pose may be, m (standard deviation)."""
+    pose_sigma_theta: NonNegative = 0.005
+    """rad (standard deviation)."""
+    rate_hz: Annotated[float, Meta(gt=0, le=50)] = 2.0
+    """``map/landmarks`` per second (once there is a landmark)."""
+    gate_chi2: Positive = 11.83
+    """Mahalanobis gate on (range, bearing), chi-square 2 degrees of freedom."""
+    max_landmarks: Annotated[int, Meta(ge=1, le=1000)] = 100
+    """Landmarks kept at most; sightings of more are ignored (and logged)."""
+
+
+class Slam(Section):
+    """The reference EKF-SLAM (services/slam, docs/slam.md). Its odometry and sighting noise are
+    the localizer's (``[localizer]``)."""
+
+    rate_hz: Annotated[float, Meta(gt=0, le=100)] = 20.0
+    """``slam/pose`` per second (it is also published after every landmark frame)."""
+    map_rate_hz: Annotated[float, Meta(gt=0, le=50)] = 2.0
+    """``slam/map`` per second."""
+    gate_chi2: Positive = 11.83
+    """Mahalanobis gate on (range, bearing), chi-square 2 degrees of freedom."""
+    max_landmarks: Annotated[int, Meta(ge=1, le=1000)] = 100
+    """Landmarks kept at most (the state grows by 2 numbers each, the update as its square)."""
+
+
 class Lens(Section):
     """The simulated camera's true lens: what `icefloe calibrate` measures (``[sim.lens]``).
 
@@ -346,7 +381,7 @@ class Program(Section):
     once it has exited, it stays stopped; the rest of the robot runs on)."""
 
 
-RESERVED_NAMES = {*ALL_SERVICES, "router", "viz", "up", "cli"}
+RESERVED_NAMES = {*ALL_SERVICES, *OPTIONAL_SERVICES, "router", "viz", "up", "cli"}
 """Names a program may not have: icefloe's own processes."""
 
 
@@ -368,6 +403,8 @@ class RobotConfig(Section):
     display: Display = Display()
     odometry: Odometry = Odometry()
     localizer: Localizer = Localizer()
+    mapper: Mapper = Mapper()
+    slam: Slam = Slam()
     sim: Sim = Sim()
     webapi: Webapi = Webapi()
     zenoh: Zenoh = Zenoh()
