@@ -40,7 +40,8 @@ from .errors import ConfigError
 
 DEFAULT_ROBOT = "sim"
 """The robot a command means when none is named: the simulated one."""
-ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
+ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi",
+                "grid", "planner", "follower")
 
 OPTIONAL_SERVICES = ("mapper", "slam")
 """icefloe's services `icefloe up` starts only when ``services`` names them (docs/slam.md)."""
@@ -286,6 +287,44 @@ class Slam(Section):
     """Landmarks kept at most (the state grows by 2 numbers each, the update as its square)."""
 
 
+class Planner(Section):
+    """The occupancy grid and the reference planner (services/grid, services/planner; docs/planning.md)."""
+
+    world: str = ""
+    """The world whose obstacles make the grid: a world name or a path ("" = ``localizer.world``)."""
+    resolution: Annotated[float, Meta(ge=0.005, le=1.0)] = 0.02
+    """Side of a grid cell, m."""
+    clearance: Annotated[float, Meta(ge=0, le=1.0)] = 0.05
+    """Room kept between the robot and an obstacle, beyond ``geometry.radius``, m: the planner
+    plans for a point on the grid inflated by radius + clearance."""
+    max_waiting: Annotated[int, Meta(ge=0, le=32)] = 4
+    """Plan queries that may wait while one is being planned; more are answered "busy" at once."""
+
+
+class Follower(Section):
+    """The reference path follower: pure pursuit (services/follower; docs/planning.md)."""
+
+    pose: Literal["loc/pose", "odom/pose", "sim/truth"] = "loc/pose"
+    """Where the robot is: the localizer (the world frame the planner plans in), odometry, or
+    the simulator's truth (tests and benchmarks only)."""
+    rate_hz: Annotated[float, Meta(gt=0, le=100)] = 20.0
+    """Commands on ``cmd/twist`` per second while following."""
+    speed: Annotated[float, Meta(gt=0, le=1.0)] = 0.15
+    """Forward speed, m/s (a path's own ``speed`` replaces it, up to ``max_speed``)."""
+    max_speed: Annotated[float, Meta(gt=0, le=1.0)] = 0.3
+    """Fastest forward speed a path may ask for, m/s."""
+    lookahead: Annotated[float, Meta(gt=0, le=2.0)] = 0.15
+    """Distance ahead along the path of the point steered at, m."""
+    max_turn_rate: Annotated[float, Meta(gt=0, le=10.0)] = 1.5
+    """Fastest turn, rad/s."""
+    turn_in_place: Annotated[float, Meta(gt=0, le=3.2)] = 0.5
+    """Turn on the spot first when the point steered at is more than this off the heading, rad."""
+    goal_tolerance: Annotated[float, Meta(gt=0, le=1.0)] = 0.03
+    """Arrived when the robot's centre is this close to the path's last point, m."""
+    pose_timeout_s: Seconds = 0.5
+    """Stop when no pose came for this long while following, s."""
+
+
 class Lens(Section):
     """The simulated camera's true lens: what `icefloe calibrate` measures (``[sim.lens]``).
 
@@ -406,6 +445,8 @@ class RobotConfig(Section):
     mapper: Mapper = Mapper()
     slam: Slam = Slam()
     sim: Sim = Sim()
+    planner: Planner = Planner()
+    follower: Follower = Follower()
     webapi: Webapi = Webapi()
     zenoh: Zenoh = Zenoh()
     source: str = ""

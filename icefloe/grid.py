@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .config import RobotConfig
+from .errors import ConfigError
 from .worldmap import WorldMap
 
 FREE, OCCUPIED = 0, 1
@@ -149,10 +151,11 @@ def bounds(world: WorldMap) -> tuple[float, float, float, float]:
     xs: list[float] = []
     ys: list[float] = []
     for o in world.obstacles:
-        cx, cy, hl, hw, _yaw = o.rectangle()
-        reach = math.hypot(hl, hw)
-        xs += [cx - reach, cx + reach]
-        ys += [cy - reach, cy + reach]
+        cx, cy, hl, hw, yaw = o.rectangle()
+        c, s = math.cos(yaw), math.sin(yaw)
+        for u, v in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):   # the corners
+            xs.append(cx + u * c - v * s)
+            ys.append(cy + u * s + v * c)
     if not xs:
         xs = [mk.x for mk in world.markers]
         ys = [mk.y for mk in world.markers]
@@ -186,3 +189,15 @@ def from_world(world: WorldMap, resolution: float) -> Grid:
         gu, gv = half * (abs(c) + abs(s)), half * (abs(c) + abs(s))
         cells[(np.abs(u) <= hl + gu) & (np.abs(v) <= hw + gv)] = OCCUPIED
     return Grid(cells, resolution, ox, oy, 0.0, world.name)
+
+
+def of_robot(config: RobotConfig) -> Grid:
+    """The grid of a robot's world (``planner.world``, else ``localizer.world``) at its
+    ``planner.resolution``, not inflated; `ConfigError` names the key if it cannot be made."""
+    from .worldmap import load_world
+
+    name = config.planner.world or config.localizer.world
+    try:
+        return from_world(load_world(name), config.planner.resolution)
+    except ValueError as exc:
+        raise ConfigError(f"{config.source}: planner.resolution: {exc}") from None

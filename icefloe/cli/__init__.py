@@ -33,7 +33,7 @@ import argcomplete
 from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
 VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
-                "score", "scaffold", "completion")
+                "score", "grid", "scaffold", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\
