@@ -71,11 +71,12 @@ def planning(repeat: int) -> None:
     t0 = time.perf_counter()
     inflated = grid.inflate(0.1 + 0.05)
     grown = time.perf_counter() - t0
-    times, expanded, points = [], 0, []
+    times, cpu, expanded, points = [], [], 0, []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         points, expanded = plan(inflated, *ACROSS)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     free = inflated.cells == FREE
     bfs = []
     for _ in range(repeat):
@@ -86,7 +87,8 @@ def planning(repeat: int) -> None:
     print(f"grid: lab at 0.02 m: {cols} x {rows} = {rows * cols} cells ({int(free.sum())} free after growing by "
           f"0.15 m); made in {made * 1e3:.0f} ms, grown in {grown * 1e3:.0f} ms")
     print(f"plan across the lab {ACROSS[0]} -> {ACROSS[1]}: median {statistics.median(times) * 1e3:.0f} ms "
-          f"(min {min(times) * 1e3:.0f}, max {max(times) * 1e3:.0f}) over {repeat}; {expanded} cells expanded, "
+          f"(min {min(times) * 1e3:.0f}, max {max(times) * 1e3:.0f}; CPU {statistics.median(cpu) * 1e3:.0f} ms) "
+          f"over {repeat}; {expanded} cells expanded, "
           f"{len(points)} points, {length(points):.2f} m (straight line {math.dist(*ACROSS):.2f} m)")
     print(f"reference: breadth-first flood of the free cells from the start: {reached} cells in "
           f"median {statistics.median(bfs) * 1e3:.0f} ms")
