@@ -219,3 +219,13 @@ async def test_follow_marker_reaches_its_marker(robot):
         assert 0.25 < distance < 0.6, f"ended {distance:.2f} m from the marker:\n{out}"
         facing = math.atan2(MARKER_5[1] - end.y, MARKER_5[0] - end.x) - end.theta
         assert abs(math.atan2(math.sin(facing), math.cos(facing))) < math.radians(15)
+
+
+@pytest.mark.timeout(600)  # the real camera renders and detects every frame: slow on a loaded machine
+async def test_rtb_slam_maps_the_lab_with_the_toolboxs_own_ekf(robot):
+    pytest.importorskip("roboticstoolbox", reason='the Robotics Toolbox is not installed: pip install "icefloe[rtb]"')
+    start_sim_robot(robot, "camera")
+    out = await run_example("examples/rtb_slam.py", "--config", str(robot.config_path), timeout=480)
+    rmse = float(out.split("map RMSE after alignment: ")[1].split(" cm")[0])
+    markers = int(out.split(" cm over ")[1].split(" markers")[0])
+    assert markers >= 2 and rmse < 5.0, out
