@@ -56,6 +56,8 @@ async def test_plan_then_follow_drives_the_path_and_stops_at_its_end(make_robot)
         mine = of_robot(robot.config)
         assert (grid.height, grid.width) == mine.shape and grid.cells == mine.cells.tobytes()
         assert grid.world == "lab" and grid.resolution == 0.02 and grid.inflation == 0.0
+        grown = await ask(node, keys.MAP_GRID, m.GridRequest(inflation=0.15))
+        assert grown.cells == mine.inflate(0.15).cells.tobytes() and grown.inflation == 0.15
 
         # from the start pose (the origin, facing +x) round the crate to the far corner
         goal = (-1.5, -1.5)
