@@ -4,10 +4,11 @@ localizer and odometry alone on the same run, and the CPU of each reference serv
     .venv/bin/python bench/slam.py [--seconds 120] [--seed 4]
 
 Real processes on a router of their own: sim (slip 0.05, encoder noise 0.01), hwbridge,
-odometry, localizer, slam and mapper (known pose: sim/truth). This script drives a tour around
-the lab's clear square with ``cmd/twist`` and plays the camera: every third ``sim/truth`` sample
-(~17 Hz) becomes the sightings the camera would make (`simrun.Camera`: field of view, range,
-seeded noise) on ``camera/landmarks``. At the end:
+odometry, localizer, slam and mapper (known pose: sim/truth). This script drives round a 1 m
+square in the lab's clear space with ``cmd/twist``, steering on the true pose (so every run drives
+the same tour), and plays the camera: every third ``sim/truth`` sample (~17 Hz) becomes the
+sightings the camera would make (`simrun.Camera`: field of view, range, seeded noise) on
+``camera/landmarks``. At the end:
 
 * the map of ``slam/map`` and of ``map/landmarks`` scored with `icefloe score`'s maths
   (rigid Umeyama alignment to the world's markers, RMSE; the map maker's also unaligned);
@@ -42,7 +43,8 @@ from icefloe.services.odometry.model import wrap_angle
 from icefloe.worldmap import load_world
 
 SERVICES = ("sim", "hwbridge", "odometry", "localizer", "slam", "mapper")
-LEG = [(0.2, 0.0, 4.0), (0.0, 1.0, math.pi / 2)]  # 0.8 m, then a quarter turn: a square, counter-clockwise
+SQUARE = [(1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (0.0, 0.0)]
+"""Corners driven to in turn, counter-clockwise, m (inside the lab's clear square)."""
 TICK = os.sysconf("SC_CLK_TCK")
 """Clock ticks per second in /proc/<pid>/stat."""
 
@@ -82,11 +84,22 @@ async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, su
             await asyncio.sleep(0.2)
         cpu0 = {name: cpu_seconds(p.pid) for name, p in procs.items()}
         start = time.monotonic()
-        while time.monotonic() - start < seconds:
-            for v, w, dur in LEG:
-                for _ in range(round(dur / 0.05)):
-                    twist.put(m.Twist(v=v, w=w))
-                    await asyncio.sleep(0.05)
+        corner, driven, last = 0, 0.0, latest["truth"]
+        while time.monotonic() - start < seconds:  # steer on the true pose: every run drives the same square
+            t = latest["truth"]
+            driven += math.hypot(t.x - last.x, t.y - last.y)
+            last = t
+            gx, gy = SQUARE[corner % len(SQUARE)]
+            if math.hypot(gx - t.x, gy - t.y) < 0.05:
+                corner += 1
+                continue
+            err = wrap_angle(math.atan2(gy - t.y, gx - t.x) - t.theta)
+            if abs(err) > 0.15:
+                twist.put(m.Twist(v=0.0, w=max(-1.0, min(1.0, 3.0 * err))))
+            else:
+                twist.put(m.Twist(v=0.2, w=2.0 * err))
+            await asyncio.sleep(0.05)
+        latest["driven"] = driven
         node.publisher(keys.STOP).put(m.Stop())
         wall = time.monotonic() - start
         cpu = {name: (cpu_seconds(p.pid) - cpu0[name]) / wall for name, p in procs.items()}
@@ -108,7 +121,7 @@ def report(got: dict) -> None:
     rows = [("SLAM (slam/pose, aligned by its map)", px, py, pose.theta + slam.alignment.rotation),
             ("map-based localizer (loc/pose)", got["loc/pose"].x, got["loc/pose"].y, got["loc/pose"].theta),
             ("odometry alone (odom/pose)", got["odom/pose"].x, got["odom/pose"].y, got["odom/pose"].theta)]
-    print(f"tour: {got['wall']:.0f} s")
+    print(f"tour: {got['wall']:.0f} s, {got['driven']:.1f} m driven (truth), {truth.collisions} collisions")
     print(f"SLAM map: {len(slam.errors)} of {len(world)} markers, RMSE after alignment {slam.rmse * 100:.2f} cm "
           f"(worst {max(slam.errors.values()) * 100:.2f} cm)")
     print(f"map maker (known pose = sim/truth): {len(made.errors)} markers, RMSE {made.rmse * 100:.2f} cm "
