@@ -50,8 +50,18 @@ TICK = os.sysconf("SC_CLK_TCK")
 
 
 def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK
+    """User + system CPU of a process and its children (hwbridge runs its cycle in a child), s."""
+    total = 0.0
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(entry.name) == pid or int(fields[1]) == pid:
+            total += (int(fields[11]) + int(fields[12])) / TICK
+    return total
 
 
 async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, subprocess.Popen]) -> dict:
@@ -146,12 +156,12 @@ def main() -> None:
         path = robot_config(folder, "slambench", f"[sim]\nseed = {args.seed}\nslip = 0.05\nencoder_noise = 0.01\n")
         base = [sys.executable, "-m"]
         cfg = ["--config", str(path)]
-        router = subprocess.Popen([*base, "icefloe.router", *cfg], cwd=ROOT)
+        router = subprocess.Popen([*base, "icefloe.router", *cfg], cwd=ROOT, stdin=subprocess.DEVNULL)
         procs: dict[str, subprocess.Popen] = {}
         try:
             time.sleep(1.0)
             for s in SERVICES:
-                procs[s] = subprocess.Popen([*base, f"icefloe.services.{s}", *cfg], cwd=ROOT,
+                procs[s] = subprocess.Popen([*base, f"icefloe.services.{s}", *cfg], cwd=ROOT, stdin=subprocess.DEVNULL,
                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             report(asyncio.run(tour(path, args.seconds, args.seed, procs)))
         finally:

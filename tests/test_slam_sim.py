@@ -126,7 +126,7 @@ async def test_hostile_sightings_one_line_each_and_bounded_maps(make_robot) -> N
         await wait_for(lambda: len(maps) == 2 and all(len(v.landmarks) == 20 for v in maps.values()), timeout=60)
         for task in tasks:
             task.cancel()
-    for proc in procs[1:]:
+    for proc in procs:  # both slam and mapper
         assert proc.alive(), proc.output
         assert proc.stop() == 0, proc.output
         lines = proc.output.splitlines()
