@@ -3,6 +3,7 @@ on a seeded tour of the lab: the camera model of the localizer's harness, odomet
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import random
@@ -37,7 +38,7 @@ def tour(seconds: float = 120.0, dt: float = 0.02):
             th = wrap_angle(th + w * dt)
             x, y = x + v * dt * math.cos(th), y + v * dt * math.sin(th)
             t += dt
-            out.append((t, x - 0.0, y, th))
+            out.append((t, x, y, th))
             if t >= seconds:
                 return out
     return out
@@ -69,7 +70,7 @@ def test_ekf_slam_maps_the_lab_and_tracks_the_robot_with_drifting_odometry() -> 
     slam = EkfSlam(NOISE)
     odom_rng = random.Random(3)
     poses = tour(120)
-    for k, ((_, *a), (_, *b)) in enumerate(zip(poses, poses[1:], strict=False)):
+    for k, ((_, *a), (_, *b)) in enumerate(itertools.pairwise(poses)):
         c, s = math.cos(a[2]), math.sin(a[2])
         ex, ey = b[0] - a[0], b[1] - a[1]
         dx, dy, dth = c * ex + s * ey, -s * ex + c * ey, wrap_angle(b[2] - a[2])
