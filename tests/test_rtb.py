@@ -3,8 +3,8 @@
 Real processes (sim + hwbridge + odometry) drive a tour while the test plays the camera (as
 test_slam_sim.py); the robot's odom/pose, camera/landmarks and sim/truth go into a `rtb.Feed`,
 and the toolbox's EKF does map-based localization, map making and SLAM on them, checked against
-the truth. Skipped when the toolbox is not installed (``pip install "icefloe[rtb]"``). ~5 min alone
-on this machine (the toolbox steps in Python, one sighting a step).
+the truth. Skipped when the toolbox is not installed (``pip install "icefloe[rtb]"``). ~35 s alone
+on this machine.
 """
 
 from __future__ import annotations
