@@ -137,6 +137,10 @@ class _Latest:
         """True once a task keeps this topic's latest value."""
 
 
+OPTIONAL_STATE = (keys.SLAM_POSE, keys.SLAM_MAP, keys.MAP_LANDMARKS, keys.EXTLOC_POSE)
+"""Kept like the robot's state, but from services a robot may not run (slam, mapper, a lab's extloc): `ready()`
+waits for them only when named."""
+
 BLINK_MIN_S = 0.05
 """Shortest on or off time of a blinking LED, s (hwbridge takes LED commands every 20 ms)."""
 
@@ -408,7 +412,7 @@ class AsyncRobot:
         self.node = Node(service, self.config)
         self._latest = {t.name: _Latest(t) for t in
                         (keys.ODOM_POSE, keys.WHEELS, keys.HW_BATTERY, keys.LANDMARKS, keys.IMAGE,
-                         keys.LOC_POSE, keys.DIP, keys.EXTLOC_POSE)}
+                         keys.LOC_POSE, keys.DIP, *OPTIONAL_STATE)}
         self._tasks: list[asyncio.Task[None]] = []
         self._hold: asyncio.Task[None] | None = None
         self._moved = False
@@ -558,7 +562,8 @@ class AsyncRobot:
 
     async def ready(self, *names: str, timeout: float | None = None) -> None:
         """Wait until ``names`` ("odom/pose", "hw/wheels", ...) have each sent a first message."""
-        for name in names or tuple(self._latest):
+        optional = {t.name for t in OPTIONAL_STATE}  # only if asked for: their services may not run
+        for name in names or tuple(n for n in self._latest if n not in optional):
             latest = self._latest[name]
             try:
                 await asyncio.wait_for(latest.arrived.wait(), timeout or self.timeout)
@@ -609,6 +614,22 @@ class AsyncRobot:
         for your own estimates; None until the robot has been seen (and it is not repeated while
         the robot is out of view: check its ``stamp``)."""
         return self._latest[keys.EXTLOC_POSE.name].value
+
+    @property
+    def slam_pose(self) -> m.PoseEstimate | None:
+        """Latest ``slam/pose``: SLAM's x, y (m), theta (rad) in its own frame (where it started),
+        with the 3x3 covariance (services/slam, or a student's SLAM on the same key)."""
+        return self._latest[keys.SLAM_POSE.name].value
+
+    @property
+    def slam_map(self) -> m.LandmarkMap | None:
+        """Latest ``slam/map``: SLAM's landmarks (id, x, y m, 2x2 covariance m^2), in SLAM's frame."""
+        return self._latest[keys.SLAM_MAP.name].value
+
+    @property
+    def landmark_map(self) -> m.LandmarkMap | None:
+        """Latest ``map/landmarks``: the map maker's landmarks (id, x, y m, 2x2 covariance m^2)."""
+        return self._latest[keys.MAP_LANDMARKS.name].value
 
     @property
     def dip(self) -> int | None:
@@ -1176,6 +1197,21 @@ class Robot:
         """Latest ``extloc/pose``: the lab's overhead camera's x, y (m), theta (rad) in the world,
         with covariance (docs/extloc.md)."""
         return self._state(keys.EXTLOC_POSE.name, lambda r: r.external_pose)
+
+    @property
+    def slam_pose(self) -> m.PoseEstimate:
+        """Latest ``slam/pose``: SLAM's pose in its own frame, with covariance (waits for the first)."""
+        return self._state(keys.SLAM_POSE.name, lambda r: r.slam_pose)
+
+    @property
+    def slam_map(self) -> m.LandmarkMap:
+        """Latest ``slam/map``: SLAM's landmarks with their covariances (waits for the first)."""
+        return self._state(keys.SLAM_MAP.name, lambda r: r.slam_map)
+
+    @property
+    def landmark_map(self) -> m.LandmarkMap:
+        """Latest ``map/landmarks``: the map maker's landmarks with covariances (waits for the first)."""
+        return self._state(keys.MAP_LANDMARKS.name, lambda r: r.landmark_map)
 
     @property
     def dip(self) -> int:

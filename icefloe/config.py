@@ -42,6 +42,9 @@ DEFAULT_ROBOT = "sim"
 """The robot a command means when none is named: the simulated one."""
 ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
 
+OPTIONAL_SERVICES = ("grid", "planner", "follower", "mapper", "slam")
+"""icefloe's services `icefloe up` starts only when ``services`` names them (docs/planning.md,
+docs/slam.md): a course turns them on; a robot that does not use them pays nothing for them."""
 
 # Value ranges, checked when a file is read: a bad value is a ConfigError naming its key
 # ("robot.toml: hwbridge.deadman_s: Expected `float` > 0.0") and nothing starts.
@@ -98,6 +101,9 @@ class Geometry(Section):
     """Distance between the wheels' contact points, m."""
     ticks_per_rev: Count = 384
     """Encoder counts per wheel turn."""
+    radius: Positive = 0.1
+    """Radius of a disc around the robot's centre that holds all of it, m (the simulator's
+    collisions with obstacles; the planner keeps its centre this far from them)."""
 
 
 class Hwbridge(Section):
@@ -306,6 +312,77 @@ class Localizer(Section):
     showing >= 2 known markers (0 = never)."""
 
 
+class Mapper(Section):
+    """The reference map maker: landmark map from a known pose (services/mapper, docs/slam.md).
+    Its sighting noise is the localizer's (``[localizer]`` sigma_range, sigma_range_rel, sigma_bearing)."""
+
+    pose: Literal["extloc/pose", "sim/truth"] = "sim/truth"
+    """Where the known pose comes from: an external localizer (motion capture, an overhead
+    camera) on ``extloc/pose``, or the simulator's truth."""
+    pose_sigma_xy: NonNegative = 0.005
+    """How far off that pose may be, m (standard deviation)."""
+    pose_sigma_theta: NonNegative = 0.005
+    """rad (standard deviation)."""
+    rate_hz: Annotated[float, Meta(gt=0, le=50)] = 2.0
+    """``map/landmarks`` per second (once there is a landmark)."""
+    gate_chi2: Positive = 11.83
+    """Mahalanobis gate on (range, bearing), chi-square 2 degrees of freedom."""
+    max_landmarks: Annotated[int, Meta(ge=1, le=1000)] = 100
+    """Landmarks kept at most; sightings of more are ignored (and logged)."""
+
+
+class Slam(Section):
+    """The reference EKF-SLAM (services/slam, docs/slam.md). Its odometry and sighting noise are
+    the localizer's (``[localizer]``)."""
+
+    rate_hz: Annotated[float, Meta(gt=0, le=100)] = 20.0
+    """``slam/pose`` per second (it is also published after every landmark frame)."""
+    map_rate_hz: Annotated[float, Meta(gt=0, le=50)] = 2.0
+    """``slam/map`` per second."""
+    gate_chi2: Positive = 11.83
+    """Mahalanobis gate on (range, bearing), chi-square 2 degrees of freedom."""
+    max_landmarks: Annotated[int, Meta(ge=1, le=1000)] = 100
+    """Landmarks kept at most (the state grows by 2 numbers each, the update as its square)."""
+
+
+class Planner(Section):
+    """The occupancy grid and the reference planner (services/grid, services/planner; docs/planning.md)."""
+
+    world: str = ""
+    """The world whose obstacles make the grid: a world name or a path ("" = ``localizer.world``)."""
+    resolution: Annotated[float, Meta(ge=0.005, le=1.0)] = 0.02
+    """Side of a grid cell, m."""
+    clearance: Annotated[float, Meta(ge=0, le=1.0)] = 0.05
+    """Room kept between the robot and an obstacle, beyond ``geometry.radius``, m: the planner
+    plans for a point on the grid inflated by radius + clearance."""
+    max_waiting: Annotated[int, Meta(ge=0, le=32)] = 4
+    """Plan queries that may wait while one is being planned; more are answered "busy" at once."""
+
+
+class Follower(Section):
+    """The reference path follower: pure pursuit (services/follower; docs/planning.md)."""
+
+    pose: Literal["loc/pose", "odom/pose", "sim/truth"] = "loc/pose"
+    """Where the robot is: the localizer (the world frame the planner plans in), odometry, or
+    the simulator's truth (tests and benchmarks only)."""
+    rate_hz: Annotated[float, Meta(gt=0, le=100)] = 20.0
+    """Commands on ``cmd/twist`` per second while following."""
+    speed: Annotated[float, Meta(gt=0, le=1.0)] = 0.15
+    """Forward speed, m/s (a path's own ``speed`` replaces it, up to ``max_speed``)."""
+    max_speed: Annotated[float, Meta(gt=0, le=1.0)] = 0.3
+    """Fastest forward speed a path may ask for, m/s."""
+    lookahead: Annotated[float, Meta(gt=0, le=2.0)] = 0.15
+    """Distance ahead along the path of the point steered at, m."""
+    max_turn_rate: Annotated[float, Meta(gt=0, le=10.0)] = 1.5
+    """Fastest turn, rad/s."""
+    turn_in_place: Annotated[float, Meta(gt=0, le=3.2)] = 0.5
+    """Turn on the spot first when the point steered at is more than this off the heading, rad."""
+    goal_tolerance: Annotated[float, Meta(gt=0, le=1.0)] = 0.03
+    """Arrived when the robot's centre is this close to the path's last point, m."""
+    pose_timeout_s: Seconds = 0.5
+    """Stop when no pose came for this long while following, s."""
+
+
 class Lens(Section):
     """The simulated camera's true lens: what `icefloe calibrate` measures (``[sim.lens]``).
 
@@ -406,7 +483,7 @@ class Program(Section):
     once it has exited, it stays stopped; the rest of the robot runs on)."""
 
 
-RESERVED_NAMES = {*ALL_SERVICES, "router", "viz", "up", "cli"}
+RESERVED_NAMES = {*ALL_SERVICES, *OPTIONAL_SERVICES, "router", "viz", "up", "cli"}
 """Names a program may not have: icefloe's own processes."""
 
 
@@ -430,7 +507,11 @@ class RobotConfig(Section):
     display: Display = Display()
     odometry: Odometry = Odometry()
     localizer: Localizer = Localizer()
+    mapper: Mapper = Mapper()
+    slam: Slam = Slam()
     sim: Sim = Sim()
+    planner: Planner = Planner()
+    follower: Follower = Follower()
     webapi: Webapi = Webapi()
     zenoh: Zenoh = Zenoh()
     source: str = ""

@@ -40,6 +40,28 @@ its own pose from (``icefloe extloc calibrate``, docs/extloc.md; the robots' cam
     size = 0.2                # side of the black square, m
     yaw = 0.0                 # where the marker's top edge points, rad, CCW from +x
 
+Obstacles stand on the floor: the simulated robot collides with them and stops
+(`icefloe.sim.world`), and the occupancy grid a planner uses is made from them
+(`icefloe.grid`). Two kinds, each a rectangle seen from above::
+
+    [[obstacle]]
+    kind = "wall"             # a straight wall from (x0, y0) to (x1, y1)
+    x0 = -2.0                 # m
+    y0 = 2.0
+    x1 = 2.0
+    y1 = 2.0
+    thickness = 0.05          # m, centred on the line (default 0.05)
+    height = 0.3              # m (default 0.3)
+
+    [[obstacle]]
+    kind = "box"              # a box centred on (x, y)
+    x = -0.9                  # m
+    y = -0.9
+    length = 0.5              # m, along yaw
+    width = 0.4               # m, across yaw
+    yaw = 0.0                 # rad, CCW from +x (default 0)
+    height = 0.3              # m (default 0.3)
+
 World frame: x and y on the floor, z up, angles counter-clockwise from +x.
 """
 
@@ -129,14 +151,95 @@ class FloorMarker(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
                 raise ValueError(f"`{key}` must be a finite number")
 
 
+Rectangle = tuple[float, float, float, float, float]
+"""An obstacle's footprint: centre x, centre y (m), half length along yaw, half width (m), yaw (rad)."""
+
+
+class _Obstacle(msgspec.Struct, frozen=True, forbid_unknown_fields=True, tag_field="kind"):
+    def __post_init__(self) -> None:
+        for key in self.__struct_fields__:
+            if not math.isfinite(getattr(self, key)):
+                raise ValueError(f"`{key}` must be a finite number")
+        if self.height <= 0:
+            raise ValueError("`height` must be > 0")
+
+
+class Wall(_Obstacle, frozen=True, tag="wall"):
+    """A straight wall from (x0, y0) to (x1, y1), ``thickness`` thick (centred on the line)."""
+
+    x0: float
+    """One end, world frame, m."""
+    y0: float
+    x1: float
+    """The other end, world frame, m."""
+    y1: float
+    thickness: float = 0.05
+    """m."""
+    height: float = 0.3
+    """m."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.thickness <= 0:
+            raise ValueError("`thickness` must be > 0")
+        if math.hypot(self.x1 - self.x0, self.y1 - self.y0) == 0:
+            raise ValueError("the wall's two ends (x0, y0) and (x1, y1) are the same point")
+
+    def rectangle(self) -> Rectangle:
+        length = math.hypot(self.x1 - self.x0, self.y1 - self.y0)
+        return ((self.x0 + self.x1) / 2, (self.y0 + self.y1) / 2, length / 2, self.thickness / 2,
+                math.atan2(self.y1 - self.y0, self.x1 - self.x0))
+
+
+class Box(_Obstacle, frozen=True, tag="box"):
+    """A box centred on (x, y), ``length`` along ``yaw`` and ``width`` across it."""
+
+    x: float
+    """Centre, world frame, m."""
+    y: float
+    length: float
+    """m, along yaw."""
+    width: float
+    """m, across yaw."""
+    yaw: float = 0.0
+    """rad, counter-clockwise from +x."""
+    height: float = 0.3
+    """m."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.length <= 0 or self.width <= 0:
+            raise ValueError("`length` and `width` must be > 0")
+
+    def rectangle(self) -> Rectangle:
+        return (self.x, self.y, self.length / 2, self.width / 2, self.yaw)
+
+
+Obstacle = Wall | Box
+
+
+def clearance(rect: Rectangle, x: float, y: float) -> float:
+    """Distance from the point (x, y) to the rectangle, m (0 inside it)."""
+    cx, cy, hl, hw, yaw = rect
+    c, s = math.cos(yaw), math.sin(yaw)
+    u, v = (x - cx) * c + (y - cy) * s, -(x - cx) * s + (y - cy) * c   # in the rectangle's frame
+    du, dv = max(abs(u) - hl, 0.0), max(abs(v) - hw, 0.0)
+    return math.hypot(du, dv)
+
+
 class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """A named set of markers with unique ids (a world file: ``name`` and ``[[marker]]`` tables),
-    and the calibration boards standing in it (``[[board]]``)."""
+    the calibration boards standing in it (``[[board]]``) and its obstacles (``[[obstacle]]``)."""
 
     name: str = ""
     markers: tuple[Marker, ...] = msgspec.field(default=(), name="marker")
     boards: tuple[Board, ...] = msgspec.field(default=(), name="board")
     floor_markers: tuple[FloorMarker, ...] = msgspec.field(default=(), name="floor_marker")
+    obstacles: tuple[Obstacle, ...] = msgspec.field(default=(), name="obstacle")
+
+    def clearance(self, x: float, y: float) -> float:
+        """Distance from (x, y) to the nearest obstacle, m (0 inside one; inf without obstacles)."""
+        return min((clearance(o.rectangle(), x, y) for o in self.obstacles), default=math.inf)
 
     def marker(self, id: int) -> Marker | None:
         """The marker with this ArUco id, or None if the world has none."""

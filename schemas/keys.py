@@ -77,6 +77,12 @@ CLOCK = Topic("clock", m.Clock, "out")
 EXTLOC_POSE = Topic("extloc/pose", m.ExternalPose, "out")
 """The robot's pose from the lab's overhead camera; published by the lab's localizer only (docs/extloc.md)."""
 TRUTH = Topic("sim/truth", m.Truth, "out")
+MAP_LANDMARKS = Topic("map/landmarks", m.LandmarkMap, "out")
+"""The landmark map made with a known pose (services/mapper, or your own map maker)."""
+SLAM_POSE = Topic("slam/pose", m.PoseEstimate, "out")
+"""SLAM's pose of the robot, in SLAM's frame (services/slam, or your own)."""
+SLAM_MAP = Topic("slam/map", m.LandmarkMap, "out")
+"""SLAM's landmark map, in SLAM's frame (services/slam, or your own)."""
 SIM_GPIO = Topic("sim/gpio", m.GpioLevel, "out")
 """Simulated GPIO line levels; each line's driver publishes it (see `GpioLevel`)."""
 SIM_CONTROL = Topic("sim/control", m.SimControl, "query", reply=m.SimState)
@@ -86,6 +92,13 @@ ODOM_RESET = Topic("odom/reset", m.PoseReset, "query", reply=m.Pose)
 SNAPSHOT = Topic("camera/snapshot", m.Stop, "query", reply=m.Image, read_only=True)
 INFO = Topic("info", m.Stop, "query", reply=m.RobotInfo, read_only=True)
 SHUTDOWN_REQUEST = Topic("power/request", m.ShutdownRequest, "query", reply=m.ShutdownNotice)
+MAP_GRID = Topic("map/grid", m.GridRequest, "query", reply=m.OccupancyGrid, read_only=True)
+"""The world's occupancy grid (services/grid), inflated on request."""
+PLAN = Topic("nav/plan", m.PlanRequest, "query", reply=m.Plan)
+"""A path from start to goal on the grid (services/planner, or your own planner)."""
+NAV_PATH = Topic("nav/path", m.NavPath, "in")
+"""A path for the follower to drive (services/follower, or your own)."""
+NAV_STATUS = Topic("nav/status", m.FollowStatus, "out")
 
 TABLE: dict[str, Topic] = {
     t.name: t
@@ -95,6 +108,8 @@ TABLE: dict[str, Topic] = {
         WHEELS, LOOP, HW_BATTERY, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
         BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, EXTLOC_POSE, TRUTH, SIM_GPIO,
         ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL,
+        MAP_GRID, PLAN, NAV_PATH, NAV_STATUS,
+        MAP_LANDMARKS, SLAM_POSE, SLAM_MAP,
     )
 }  # fmt: skip
 

@@ -332,6 +332,162 @@ class Truth(Message):
     x: float
     y: float
     theta: float
+    collided: bool = False
+    """True while the robot pushes against an obstacle of the world (it does not move into it)."""
+    collisions: int = 0
+    """Times the robot has run into an obstacle since the simulator started."""
+
+
+# --------------------------------------------------------------------------- maps of landmarks
+
+MAX_MAP_LANDMARKS = 1000
+"""Most landmarks in a `LandmarkMap` (ArUco's DICT_4X4_100 has 100)."""
+
+
+class MapLandmark(Message):
+    """One landmark of a `LandmarkMap`: its id and where the map puts it."""
+
+    id: Annotated[int, msgspec.Meta(ge=0)]
+    """ArUco id."""
+    x: float
+    """m, map frame."""
+    y: float
+    """m, map frame."""
+    covariance: Annotated[list[float], msgspec.Meta(max_length=4)] = []
+    """2x2 covariance of (x, y), row-major, 4 numbers, m^2 (empty = not known)."""
+
+
+class LandmarkMap(Message, kw_only=True):
+    """``map/landmarks`` (the map maker) and ``slam/map`` (SLAM): a map of landmarks, with how sure
+    each one is; also the file format `icefloe score map` reads.
+
+    ``map/landmarks`` is in the world frame of the pose it was made with; ``slam/map`` in SLAM's
+    own frame (the robot's pose when SLAM started), which `icefloe score` aligns to the world's.
+    """
+
+    stamp: int = 0
+    """ns since the Unix epoch: the last observation in the map."""
+    landmarks: Annotated[list[MapLandmark], msgspec.Meta(max_length=MAX_MAP_LANDMARKS)]
+    """By id, ascending."""
+
+
+# --------------------------------------------------------------------------- planning
+
+MAX_PATH_POINTS = 20_000
+"""Most points in a path (`NavPath`, `Plan`): 400 m at 2 cm."""
+
+
+def _check_points(points: list[tuple[float, float]], field: str) -> None:
+    if len(points) > MAX_PATH_POINTS:
+        raise ValueError(f"field `{field}` has {len(points)} points, more than {MAX_PATH_POINTS}")
+    for i, (x, y) in enumerate(points):
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"field `{field}`: point {i} is not finite: ({x}, {y})")
+
+
+class GridRequest(Message):
+    """``map/grid`` query (optional payload): which occupancy grid of the world."""
+
+    inflation: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
+    """Grow the obstacles by this much, m (0 = as they stand; the robot's radius = the free space
+    of its centre, as a planner wants it)."""
+
+
+class OccupancyGrid(Message):
+    """Answer to ``map/grid``: the world's obstacles as square cells (``icefloe/grid.py``).
+
+    Cell (row, col) covers x in ``origin_x + [col, col + 1) * resolution``, y in ``origin_y +
+    [row, row + 1) * resolution``; ``cells`` holds ``height`` rows of ``width`` bytes, row 0 first
+    (the bottom row, y = origin_y): 1 = occupied, 0 = free.
+    """
+
+    stamp: int
+    world: str
+    """The world file's name."""
+    resolution: float
+    """Side of a cell, m."""
+    origin_x: float
+    """World x of the left edge of column 0, m."""
+    origin_y: float
+    """World y of the bottom edge of row 0, m."""
+    width: int
+    """Columns (cells along x)."""
+    height: int
+    """Rows (cells along y)."""
+    inflation: float
+    """The obstacles were grown by this much, m."""
+    cells: bytes
+    """width * height bytes, row-major, row 0 (bottom) first: 1 occupied, 0 free."""
+
+
+class PlanRequest(Message):
+    """``nav/plan`` query: a path from start to goal on the occupancy grid, world frame."""
+
+    start_x: float
+    """m."""
+    start_y: float
+    """m."""
+    goal_x: float
+    """m."""
+    goal_y: float
+    """m."""
+
+
+class Plan(Message):
+    """Answer to ``nav/plan``: the path, or why there is none."""
+
+    stamp: int
+    ok: bool
+    """True: ``path`` goes from start to goal through free cells."""
+    reason: str = ""
+    """Why there is no path (``ok`` false): e.g. the goal is inside an obstacle, or walled off."""
+    path: list[tuple[float, float]] = []
+    """Points (x, y) from start to goal, world frame, m."""
+    length: float = 0.0
+    """Length of the path, m."""
+    expanded: int = 0
+    """Cells the search expanded."""
+    seconds: float = 0.0
+    """Time the planner took, s."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_points(self.path, "path")
+
+
+class NavPath(Command):
+    """``nav/path``: a path for the follower to drive, then stop at its end. An empty path, or a
+    stop on ``cmd/stop``, ends the one being followed. Numbered like every command (`Command`):
+    a path issued before a stop is not driven."""
+
+    points: list[tuple[float, float]]
+    """Points (x, y) to drive through, in order, world frame (the frame of ``loc/pose``), m."""
+    speed: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Forward speed, m/s (0 = the follower's configured speed)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_points(self.points, "points")
+
+
+class FollowStatus(Message):
+    """``nav/status``: what the path follower is doing (on every change and a few times a second)."""
+
+    stamp: int
+    state: Literal["idle", "following", "arrived", "stopped"]
+    """"stopped": a stop, a new empty path or a lost pose ended the path before its end."""
+    reason: str = ""
+    """Why it stopped, or why a path was refused."""
+    sender: str = ""
+    """The path's sender (`Command.sender`)."""
+    seq: int = 0
+    """The path's number (`Command.seq`)."""
+    points: int = 0
+    """Points in the path."""
+    cross_track: float = 0.0
+    """Distance from the robot to the path now, m."""
+    remaining: float = 0.0
+    """Distance left along the path, m."""
 
 
 # --------------------------------------------------------------------------- camera (out)
@@ -506,6 +662,10 @@ class SimState(Message):
     still since)."""
     leds: int = 0
     """The board's LEDs lit now, bit n-1 = LED n (PenguinPi: 1 red, 2..4 yellow); 0 on the icoBoard."""
+    collided: bool = False
+    """True while the robot pushes against an obstacle of the world."""
+    collisions: int = 0
+    """Times the robot has run into an obstacle since the simulator started."""
 
 
 class OledFrame(Message):

@@ -21,6 +21,11 @@ voltage) is interpolated between those two with the wheel's lag behind its
 steady speed, and scaled with the duty: a stalled wheel at full duty draws
 250 mA, a free-running one 190 mA.
 
+Obstacles (a world's ``[[obstacle]]`` tables, `icefloe.worldmap`): the robot is a disc of
+``geometry.radius``. A step that would take it deeper into an obstacle does not happen: the
+robot stays where it was, its wheels stand still (they do not count: a robot pushing a wall
+sees no motion in its odometry) and `collided` says so; a step out of it, or along it, does.
+
 Battery: a 2S lithium pack, 8.2 V full, open-circuit voltage falling linearly
 with the charge drawn (`CAPACITY_AH`), minus an internal-resistance drop. The
 Raspberry Pi and the board draw `BASE_CURRENT` all the time.
@@ -34,6 +39,7 @@ import sys
 import threading
 
 from icefloe.config import Geometry
+from icefloe.worldmap import Obstacle, clearance
 
 SLOPE_COUNTS_PER_PCT = 11.5
 """Steady encoder rate per percent of PWM duty, counts/s per % (report Fig. 4)."""
@@ -58,6 +64,9 @@ CAPACITY_AH = 2.2
 INTERNAL_RESISTANCE = 0.1
 """Pack + wiring resistance, ohm."""
 
+CONTACT_MARGIN = 0.002
+"""A robot that ran into an obstacle is in contact with it until this far from it, m."""
+
 WHEELS = ("left", "right")
 
 
@@ -75,7 +84,7 @@ class World:
     """
 
     def __init__(self, geometry: Geometry, *, seed: int = 0, slip: float = 0.0,
-                 encoder_noise: float = 0.0) -> None:
+                 encoder_noise: float = 0.0, obstacles: tuple[Obstacle, ...] = ()) -> None:
         """``slip``: relative std dev of ground travel vs rim travel per step (0 = none).
         ``encoder_noise``: relative std dev of counted vs turned wheel angle per step.
         ``seed``: random seed for both; 0 picks one and prints it so a run can be repeated.
@@ -102,6 +111,9 @@ class World:
         self._stalled = [False, False]
         self._pose = (0.0, 0.0, 0.0)
         self._ocv = FULL_VOLTAGE             # open-circuit voltage, V
+        self._rects = [o.rectangle() for o in obstacles]
+        self._collided = False
+        self._collisions = 0
         self._motor_current = [0.0, 0.0]
         self.time = 0.0
         """Simulated seconds stepped so far."""
@@ -177,26 +189,50 @@ class World:
         with self._lock:
             volts = self._terminal_voltage()
             travel = [0.0, 0.0]               # rim travel this step, m
+            speed = [0.0, 0.0]
+            noise = [0.0, 0.0]                # relative encoder error this step
             decay = math.exp(-dt / MOTOR_TAU)
             for i in range(2):
                 target = 0.0 if self._stalled[i] else self.steady_speed(self._duty[i], volts)
                 v0 = self._speed[i]
                 # Exact integral of a first-order lag over the step.
                 travel[i] = target * dt + (v0 - target) * MOTOR_TAU * (1.0 - decay)
-                self._speed[i] = target + (v0 - target) * decay
+                speed[i] = target + (v0 - target) * decay
                 self._motor_current[i] = self._current(i, target, volts)
-                noise = self._rng.gauss(0.0, self.encoder_noise) if self.encoder_noise else 0.0
-                before = math.floor(self._counts[i])
-                self._counts[i] += travel[i] * (1.0 + noise) / self._m_per_count
-                if math.floor(self._counts[i]) != before:
-                    self._counts_changed = self.time + dt
+                noise[i] = self._rng.gauss(0.0, self.encoder_noise) if self.encoder_noise else 0.0
+            ground = travel
             if self.slip:
-                travel = [d * (1.0 + self._rng.gauss(0.0, self.slip)) for d in travel]
-            self._pose = self._integrate(self._pose, travel[0], travel[1])
+                ground = [d * (1.0 + self._rng.gauss(0.0, self.slip)) for d in travel]
+            pose = self._integrate(self._pose, ground[0], ground[1])
+            if self._rects and self._blocked(pose):
+                speed, travel = [0.0, 0.0], [0.0, 0.0]   # against the obstacle: the wheels stand still
+                if not self._collided:
+                    self._collisions += 1
+                self._collided = True
+            else:  # still in contact until clear by CONTACT_MARGIN: creeping along a wall is one collision
+                self._pose = pose
+                self._collided = self._collided and any(
+                    clearance(r, pose[0], pose[1]) < self.geometry.radius + CONTACT_MARGIN for r in self._rects)
+            for i in range(2):
+                self._speed[i] = speed[i]
+                if travel[i]:
+                    before = math.floor(self._counts[i])
+                    self._counts[i] += travel[i] * (1.0 + noise[i]) / self._m_per_count
+                    if math.floor(self._counts[i]) != before:
+                        self._counts_changed = self.time + dt
             current = BASE_CURRENT + sum(self._motor_current)
             self._ocv = max(0.0, self._ocv - current * dt / 3600.0 / CAPACITY_AH
                             * (FULL_VOLTAGE - EMPTY_VOLTAGE))
             self.time += dt
+
+    def _blocked(self, pose: tuple[float, float, float]) -> bool:
+        """Would the robot at ``pose`` overlap an obstacle more than it does now?"""
+        radius = self.geometry.radius
+        for rect in self._rects:
+            after = clearance(rect, pose[0], pose[1])
+            if after < radius and after < clearance(rect, self._pose[0], self._pose[1]):
+                return True
+        return False
 
     def _current(self, i: int, target: float, volts: float) -> float:
         """Motor current, A: no-load current when at speed, up to max-load when held back."""
@@ -239,6 +275,18 @@ class World:
         """Place the robot (m, m, rad)."""
         with self._lock:
             self._pose = (float(x), float(y), wrap_angle(theta))
+
+    @property
+    def collided(self) -> bool:
+        """Did the last step push the robot against an obstacle (and so not move it)?"""
+        with self._lock:
+            return self._collided
+
+    @property
+    def collisions(self) -> int:
+        """Times the robot has run into an obstacle (each contact counted once)."""
+        with self._lock:
+            return self._collisions
 
     def counts(self) -> tuple[int, int]:
         """Encoder counts (left, right), unbounded; forward motion increases both."""

@@ -248,3 +248,13 @@ async def test_go_to_pose_overhead_reaches_its_goal_with_the_external_pose_only(
     assert "goal reached" in out, out
     assert math.hypot(end.x - goal[0], end.y - goal[1]) < 0.05, (end, out)
     assert abs(math.remainder(end.theta - goal[2], math.tau)) < math.radians(6), (end, out)
+
+
+@pytest.mark.timeout(600)  # the real camera renders and detects every frame: slow on a loaded machine
+async def test_rtb_slam_maps_the_lab_with_the_toolboxs_own_ekf(robot):
+    pytest.importorskip("roboticstoolbox", reason='the Robotics Toolbox is not installed: pip install "icefloe[rtb]"')
+    start_sim_robot(robot, "camera")
+    out = await run_example("examples/rtb_slam.py", "--config", str(robot.config_path), timeout=480)
+    rmse = float(out.split("map RMSE after alignment: ")[1].split(" cm")[0])
+    markers = int(out.split(" cm over ")[1].split(" markers")[0])
+    assert markers >= 2 and rmse < 5.0, out

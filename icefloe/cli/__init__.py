@@ -11,6 +11,7 @@
     gateware.py    gateware build, pins                the icoBoard's FPGA design
     snapshot.py    snapshot                            save a frame of the robot's camera
     calibrate.py   calibrate                           calibrate the robot's camera
+    score.py       score map, score path               a map or a trajectory against the truth
     scaffold.py    new-service                         a service of your own, ready to run and test
     doctor.py      doctor                              check a robot's health, one line per problem
     completion.py  completion                          shell completion (argcomplete)
@@ -33,7 +34,7 @@ import argcomplete
 from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
 VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
-                "extloc", "scaffold", "doctor", "completion")
+                "extloc", "score", "grid", "scaffold", "doctor", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\

@@ -105,7 +105,8 @@ async def _truth(node: Node, sim: Simulator) -> None:
                 raise RuntimeError("the simulation clock stopped (see the traceback above)")
             steps, last_check = sim.clock.steps, deadline
         x, y, theta = sim.world.pose
-        pub.put(m.Truth(stamp=time.time_ns(), x=x, y=y, theta=theta))
+        pub.put(m.Truth(stamp=time.time_ns(), x=x, y=y, theta=theta, collided=sim.world.collided,
+                        collisions=sim.world.collisions))
         deadline = max(deadline + period, time.monotonic())
         await asyncio.sleep(deadline - time.monotonic())
 

@@ -23,6 +23,7 @@ from icefloe.sim.penguinpi import PenguinPiSim
 from icefloe.sim.world import World
 from icefloe.wire import penguinpi
 from icefloe.wire.icoboard import Descriptor
+from icefloe.worldmap import load_world
 
 log = logging.getLogger("icefloe.sim")
 
@@ -80,7 +81,7 @@ class Simulator:
         self.config = config
         sim = config.sim
         self.world = World(config.geometry, seed=sim.seed, slip=sim.slip,
-                           encoder_noise=sim.encoder_noise)
+                           encoder_noise=sim.encoder_noise, obstacles=load_world(sim.world).obstacles)
         self.world.set_pose(sim.start_x, sim.start_y, sim.start_theta)  # where the robot stands in the lab
         self.board: IcoBoardSim | PenguinPiSim
         if config.board.kind == "icoboard":
@@ -144,7 +145,7 @@ class Simulator:
             peak_duty=self.world.peak_duty, ticks_left=ticks[0], ticks_right=ticks[1],
             integrator_left=integrators[0], integrator_right=integrators[1],
             zero_duty_since=self.world.zero_duty_since, counts_changed=self.world.counts_changed,
-            leds=leds)
+            leds=leds, collided=self.world.collided, collisions=self.world.collisions)
 
     # ------------------------------------------------------------------ handles
 

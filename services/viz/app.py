@@ -61,6 +61,9 @@ STREAMS = (
     Stream(keys.LOC_POSE, RobotLogger.loc, rate_hz=20),
     Stream(keys.EXTLOC_POSE, RobotLogger.extloc, rate_hz=20),  # the lab's overhead camera (docs/extloc.md)
     Stream(keys.TRUTH, RobotLogger.truth, rate_hz=20),  # 50 Hz on the bus
+    Stream(keys.SLAM_POSE, RobotLogger.slam, rate_hz=20),
+    Stream(keys.SLAM_MAP, RobotLogger.slam_map, rate_hz=2),
+    Stream(keys.MAP_LANDMARKS, RobotLogger.reference_map, rate_hz=2),
     Stream(keys.LANDMARKS, RobotLogger.landmarks, rate_hz=10),
     Stream(keys.IMAGE, RobotLogger.image, rate_hz=10),
     Stream(keys.BATTERY, RobotLogger.battery),

@@ -11,6 +11,9 @@ map/landmarks                      the world file's markers (static)           l
 map/odom, map/odom/trail           pose arrow and the path driven              odom/pose
 map/loc, map/loc/covariance        pose arrow and its 95 % ellipse             loc/pose
 map/truth, map/truth/trail         the simulator's true pose                   sim/truth
+map/reference                      the map maker's landmarks, 95 % ellipses    map/landmarks
+map/slam, map/slam/covariance      SLAM's pose arrow and its 95 % ellipse      slam/pose
+map/slam/landmarks                 SLAM's landmarks, 95 % ellipses             slam/map
 map/rays                           a line to each marker seen in this frame    camera/landmarks
 camera/image, camera/image/markers the JPEG and the detected marker outlines   camera/image, .../landmarks
 oled                               the little screen, one pixel per pixel      oled/frame
@@ -65,6 +68,8 @@ EXTLOC_COLOR = (190, 70, 220)
 """The lab's overhead camera's pose of the robot (``extloc/pose``)."""
 MARKER_COLOR = (230, 60, 60)
 RAY_COLOR = (250, 200, 40)
+SLAM_COLOR = (0, 190, 190)
+REFERENCE_MAP_COLOR = (255, 140, 0)
 TEXT_LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "error": "ERROR", "critical": "CRITICAL"}
 
 
@@ -91,6 +96,14 @@ def covariance_ellipse(x: float, y: float, covariance: Sequence[float], points: 
     t = np.linspace(0.0, 2 * math.pi, points + 1)
     circle = np.stack([np.cos(t), np.sin(t)])  # 2 x N, the last point closes the loop
     return (vectors @ (radii[:, None] * circle)).T + np.array([x, y])
+
+
+def landmark_ellipse(x: float, y: float, covariance: Sequence[float], points: int = 24) -> np.ndarray:
+    """Closed outline of the 95 % ellipse of a landmark's 2x2 row-major covariance (`LandmarkMap`)."""
+    if len(covariance) != 4:
+        raise ValueError(f"covariance: expected 4 numbers (2x2), got {len(covariance)}")
+    c = covariance
+    return covariance_ellipse(x, y, [c[0], c[1], 0.0, c[2], c[3], 0.0, 0.0, 0.0, 0.0], points)
 
 
 def ray_ends(x: float, y: float, theta: float, landmarks: Sequence[m.Landmark]) -> np.ndarray:
@@ -158,7 +171,7 @@ class RobotLogger:
         self.capture_width = capture_width
         """Width of the frames the detector ran on; marker corners are in its pixels (0 = same as the image)."""
         self._image_width = 0
-        self._trails = {"odom": Trail(), "loc": Trail(), "truth": Trail(), "extloc": Trail()}
+        self._trails = {"odom": Trail(), "loc": Trail(), "truth": Trail(), "extloc": Trail(), "slam": Trail()}
         self._trail_rate = {name: Decimator(TRAIL_RATE_HZ) for name in self._trails}
         self._ray_pose: dict[str, tuple[float, float, float]] = {}
 
@@ -218,6 +231,29 @@ class RobotLogger:
         self._pose("loc", msg.stamp, msg.x, msg.y, msg.theta, LOC_COLOR)
         outline = covariance_ellipse(msg.x, msg.y, msg.covariance)  # ValueError: dropped by the caller
         self._log("map/loc/covariance", rr.LineStrips2D([outline], colors=LOC_COLOR, radii=0.004))
+
+    def slam(self, msg: m.PoseEstimate) -> None:
+        """SLAM's pose, drawn in the map as if SLAM's frame were the world's (it is, when SLAM
+        starts where the world's origin is, as the simulated robot does)."""
+        self._pose("slam", msg.stamp, msg.x, msg.y, msg.theta, SLAM_COLOR)
+        outline = covariance_ellipse(msg.x, msg.y, msg.covariance)
+        self._log("map/slam/covariance", rr.LineStrips2D([outline], colors=SLAM_COLOR, radii=0.004))
+
+    def _landmark_map(self, path: str, msg: m.LandmarkMap, color: tuple[int, int, int]) -> None:
+        self._at(msg.stamp)
+        points = [(p.x, p.y) for p in msg.landmarks]
+        self._log(path, rr.Points2D(points, labels=[str(p.id) for p in msg.landmarks], colors=color, radii=0.015,
+                                    show_labels=True))
+        ellipses = [landmark_ellipse(p.x, p.y, p.covariance) for p in msg.landmarks if len(p.covariance) == 4]
+        self._log(f"{path}/covariance", rr.LineStrips2D(ellipses, colors=color, radii=0.003))
+
+    def reference_map(self, msg: m.LandmarkMap) -> None:
+        """The map maker's landmarks (``map/landmarks``) with their 95 % ellipses."""
+        self._landmark_map("map/reference", msg, REFERENCE_MAP_COLOR)
+
+    def slam_map(self, msg: m.LandmarkMap) -> None:
+        """SLAM's landmarks (``slam/map``) with their 95 % ellipses."""
+        self._landmark_map("map/slam/landmarks", msg, SLAM_COLOR)
 
     def landmarks(self, msg: m.Landmarks) -> None:
         """Rays on the map and outlines on the camera image, for the markers seen in one frame."""

@@ -1,0 +1,1 @@
+"""The reference path follower: pure pursuit along ``nav/path``, driving ``cmd/twist``."""

@@ -1,0 +1,1 @@
+"""The grid service: answers ``map/grid`` with the world's occupancy grid."""

@@ -1,0 +1,1 @@
+"""The reference planner: A* on the occupancy grid, answering ``nav/plan``."""

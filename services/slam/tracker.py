@@ -1,0 +1,68 @@
+"""SLAM's state between bus messages: the localizer's bookkeeping (odometry increments, late
+frames brought up to date, bad input logged once a second) around `EkfSlam` instead of `Ekf`.
+No bus here: `__main__.py` feeds it ``odom/pose`` and ``camera/landmarks``; tests and the
+benchmark feed it the same messages built in-process.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from icefloe.config import RobotConfig
+from icefloe.logs import LimitedLog
+from icefloe.schemas import messages as m
+
+from ..localizer.ekf import Noise
+from ..localizer.tracker import Localizer
+from .ekfslam import EkfSlam
+
+
+class Slam(Localizer):
+    """The localizer's tracker with a filter that maps as it goes (and never relocalizes)."""
+
+    def __init__(self, config: RobotConfig, log: logging.Logger) -> None:
+        super().__init__(config, log)  # reads [localizer]'s world only to check it; SLAM ignores it
+        c = config.localizer
+        noise = Noise(c.sigma_range, c.sigma_range_rel, c.sigma_bearing,
+                      c.odom_sigma_d, c.odom_sigma_theta, c.odom_sigma_theta_d)
+        self.ekf = EkfSlam(noise, gate_chi2=config.slam.gate_chi2,  # type: ignore[assignment]
+                           max_landmarks=config.slam.max_landmarks)
+        self.initialised = True  # SLAM's frame is where the robot starts
+        self._relocalize_after = 0
+
+    def estimate(self) -> m.PoseEstimate:
+        x, y, th = self.ekf.pose
+        return m.PoseEstimate(stamp=self.stamp, x=x, y=y, theta=th,
+                              covariance=[float(v) for v in self.ekf.pose_covariance.ravel()])
+
+    def on_landmarks(self, frame: m.Landmarks) -> bool:
+        good = plausible(frame, self._warn)
+        return super().on_landmarks(frame if len(good) == len(frame.landmarks) else
+                                    m.Landmarks(stamp=frame.stamp, landmarks=good))
+
+    def landmark_map(self) -> m.LandmarkMap:
+        return landmark_map(self.ekf, self.stamp)
+
+
+MAX_RANGE = 20.0
+"""Farthest plausible sighting, m: the camera reads a 7 cm marker to 3 m or so."""
+
+
+def plausible(frame: m.Landmarks, warn: LimitedLog) -> list[m.Landmark]:
+    """The frame's sightings a camera could have made (0 < range < MAX_RANGE, |bearing| <= pi); one
+    rate-limited line for the others. (The schema has already refused NaN and infinity.)"""
+    good = [lm for lm in frame.landmarks if 0.0 < lm.range < MAX_RANGE and abs(lm.bearing) <= math.pi]
+    if len(good) < len(frame.landmarks):
+        bad = next(lm for lm in frame.landmarks if lm not in good)
+        warn.warning("camera/landmarks implausible",
+                     f"camera/landmarks: landmark {bad.id} at range {bad.range} m, bearing {bad.bearing} rad "
+                     f"is not a sighting (range must be in (0, {MAX_RANGE}) m, bearing in [-pi, pi]): not used")
+    return good
+
+
+def landmark_map(filt, stamp: int) -> m.LandmarkMap:
+    """The map of a filter with ``landmarks`` and ``covariance(id)`` (`EkfSlam`, `LandmarkMapper`)."""
+    return m.LandmarkMap(stamp=stamp, landmarks=[
+        m.MapLandmark(id=i, x=x, y=y, covariance=[float(v) for v in filt.covariance(i).ravel()])
+        for i, (x, y) in sorted(filt.landmarks.items())])
