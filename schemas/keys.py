@@ -82,6 +82,14 @@ SIM_CONTROL = Topic("sim/control", m.SimControl, "query", reply=m.SimState)
 
 ODOM_RESET = Topic("odom/reset", m.PoseReset, "query", reply=m.Pose)
 SNAPSHOT = Topic("camera/snapshot", m.Stop, "query", reply=m.Image, read_only=True)
+FRAMES = Topic("camera/frames", m.Image, "out")
+"""Every captured frame as a JPEG of ``camera.image_width`` x ``image_height`` (what the web API's
+``/camera/get`` streams), published only while something subscribes to it: it costs nothing
+when nobody watches (subscribe to ``camera/image`` for a few frames a second)."""
+FRAME = Topic("camera/frame", m.Stop, "query", reply=m.Image, read_only=True)
+"""The latest frame as a JPEG of ``camera.image_width`` x ``image_height`` (web API ``/camera/frame``)."""
+CAMERA_INFO = Topic("camera/info", m.Stop, "query", reply=m.CameraInfo, read_only=True)
+"""The intrinsics of the ``image_width`` x ``image_height`` images (`CameraInfo`)."""
 INFO = Topic("info", m.Stop, "query", reply=m.RobotInfo, read_only=True)
 SHUTDOWN_REQUEST = Topic("power/request", m.ShutdownRequest, "query", reply=m.ShutdownNotice)
 
@@ -92,7 +100,7 @@ TABLE: dict[str, Topic] = {
         BOARD_SCREEN,
         WHEELS, LOOP, HW_BATTERY, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
         BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, TRUTH, SIM_GPIO,
-        ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL,
+        ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL, FRAMES, FRAME, CAMERA_INFO,
     )
 }  # fmt: skip
 

@@ -313,14 +313,48 @@ class Truth(Message):
 
 
 class Image(Message):
-    """``camera/image`` and the ``camera/snapshot`` query answer: one compressed frame."""
+    """``camera/image``, ``camera/frames`` and the ``camera/snapshot`` and ``camera/frame`` query
+    answers: one compressed frame."""
 
     stamp: int
+    """When the frame was captured, ns since the epoch."""
     width: int
     height: int
     data: bytes
     """The compressed image."""
     format: Literal["jpeg"] = "jpeg"
+
+
+class CameraInfo(Message):
+    """``camera/info`` query answer (and ``GET /camera/info``): the intrinsics of the images the
+    camera sends on ``camera/image``, ``camera/frames``, ``camera/frame`` and the web API's
+    ``/camera/get`` (``camera.image_width`` x ``camera.image_height``): its calibration, made at
+    the capture size, scaled to theirs. ``camera/snapshot`` is at the capture size (``capture_*``);
+    multiply ``fx``, ``cx`` by ``capture_width / width`` (and y alike) for it."""
+
+    width: int
+    """Width of the images these intrinsics are for, px."""
+    height: int
+    """Height of the images these intrinsics are for, px."""
+    fx: float
+    """Focal length along x, px."""
+    fy: float
+    """Focal length along y, px."""
+    cx: float
+    """Principal point x, px (0 = the centre of the left pixel column)."""
+    cy: float
+    """Principal point y, px (0 = the centre of the top pixel row)."""
+    camera_matrix: list[float]
+    """The 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] row by row (9 numbers, OpenCV's K)."""
+    dist_coeffs: list[float]
+    """OpenCV distortion coefficients (k1, k2, p1, p2, k3, ...); unitless, the same at any image size."""
+    capture_width: int
+    """Width of the frames the camera captures (and calibrates at), px."""
+    capture_height: int
+    """Height of the frames the camera captures, px."""
+    source: str
+    """Where the calibration came from: the calibration file's path, or "nominal" (``camera.focal_px``,
+    no distortion: the camera was never calibrated)."""
 
 
 class Landmark(Message):

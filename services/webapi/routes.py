@@ -34,13 +34,13 @@ from icefloe.schemas import messages as m
 from . import params
 from .auth import Login, owner_only
 from .bus import Bridge, Caller, HttpError, render
+from .camera import Camera
 from .fanout import Hub
 from .pages import Pages
 from .params import InvalidCommand
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
-BOUNDARY = "frame"
 LOG_HISTORY = 50
 """Log lines a new stream of ``log`` starts with (the robot's page shows them)."""
 S4 = 3
@@ -132,7 +132,8 @@ class Api:
         """Counts at the last /robot/hw/reset; the bus counts never reset."""
         self.dip: int | None = None
         self.s4_presses = 0
-        self.streams: set[asyncio.Task[Any]] = set()
+        self.camera = Camera(self.node, robot.timeout, single=config.webapi.camera_get == "frame")
+        """/camera/get (the MJPEG stream, or one JPEG), /camera/frame, /camera/info (`camera`)."""
         self._text = self.node.publisher(keys.BOARD_TEXT)
         self._screen = self.node.publisher(keys.BOARD_SCREEN)
         self._ledarray = self.node.publisher(keys.LEDARRAY)
@@ -329,32 +330,6 @@ class Api:
         self._leds.put(m.Led(led=led, on=True, pulse=ms / 1000))
         return text()
 
-    # ------------------------------------------------------------------ camera
-
-    async def camera(self, request: web.Request) -> web.StreamResponse:
-        """MJPEG: one ``--frame`` part per new ``camera/image``, until the client leaves."""
-        response = web.StreamResponse(headers={
-            "Content-Type": f"multipart/x-mixed-replace; boundary={BOUNDARY}"})
-        await response.prepare(request)
-        task = asyncio.current_task()
-        assert task is not None
-        self.streams.add(task)
-        try:
-            fresh = False  # the first part is the latest frame, so a viewer starts at once
-            while True:
-                try:
-                    image = await self.robot.image_jpeg(fresh=fresh)
-                except NotReachable:
-                    continue  # no camera (yet): keep the stream open, as the old server did
-                fresh = True
-                await response.write(b"--" + BOUNDARY.encode() + b"\r\nContent-Type: image/jpeg\r\n\r\n"
-                                     + image.data + b"\r\n")
-        except (ConnectionResetError, asyncio.CancelledError):
-            pass  # the viewer left, or the service is stopping
-        finally:
-            self.streams.discard(task)
-        return response
-
     def commands(self) -> dict[str, Handler]:
         """Routes that change something on the robot (or, for the button, reset a count):
         only the robot's owner may call them when the robot has access control (`auth`)."""
@@ -380,7 +355,9 @@ class Api:
             "/battery/get/voltage": self.voltage,
             "/battery/get/current": self.current,
             "/hat/dip/get": self.dip_get,
-            "/camera/get": self.camera,
+            "/camera/get": self.camera.get,  # the MJPEG stream, or one JPEG ([webapi] camera_get)
+            "/camera/frame": self.camera.frame,  # one JPEG, always
+            "/camera/info": self.camera.info,  # the intrinsics of those JPEGs
         }
 
     def app(self) -> web.Application:
@@ -401,8 +378,7 @@ class Api:
         return app
 
     async def _end_streams(self, app: web.Application) -> None:
-        for task in list(self.streams):
-            task.cancel()
+        self.camera.close()
         await self.bridge.close()
         for caller in self._callers.values():
             caller.hub.close()
