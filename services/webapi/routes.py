@@ -45,6 +45,10 @@ LOG_HISTORY = 50
 """Log lines a new stream of ``log`` starts with (the robot's page shows them)."""
 S4 = 3
 """io/buttons number of the HAT's S4, the button the old /hat/button/get counted."""
+STOP_LEAD_S = 0.02
+"""An unramped timed motion on the PenguinPi covers V·(T + 20 ms): the wheels coast ~0.1 s after
+the stop, more than its integral controller lags at the start (bench/timed_motion.py measures it;
+`Api.timed_duration` takes it off)."""
 
 
 def text(body: object = "") -> web.Response:
@@ -231,8 +235,27 @@ class Api:
         else:
             # One cmd/motion query: hwbridge ramps, holds and stops, and answers when done.
             self.demand = [0.0, 0.0]
-            await self.robot.set_velocity(left * self.unit, right * self.unit, duration, accel)
+            await self.robot.set_velocity(left * self.unit, right * self.unit,
+                                          self.timed_duration(left, right, duration, accel), accel)
         return self.state()
+
+    def timed_duration(self, left: float, right: float, duration: float, accel: float) -> float:
+        """How long hwbridge holds an unramped timed motion so that it covers V·T
+        (docs/webapi.md, timed motion; measured by bench/timed_motion.py).
+
+        Without ``accel=`` the old server set the full speed at once; hwbridge instead raises a
+        wheel's speed at most ``hwbridge.max_accel`` (2 m/s²), which takes V/a and covers V²/2a
+        less than a step would: 4 % of V·T at 40 units for 1 s, 12 % at 90. Holding the speed
+        V/2a longer gives that back (the stop at the end is not slew-limited). V is the faster
+        wheel's speed, as hwbridge limits it (`max_wheel_speed`). What remains is `STOP_LEAD_S`:
+        after the stop the wheels coast on for ~0.1 s (the motors' lag), more than the firmware's
+        controller loses at the start. A ramped motion (``accel=``) is sent as asked.
+        """
+        if accel > 0:
+            return duration
+        hw = self.robot.config.hwbridge
+        speed = min(max(abs(left), abs(right)) * self.unit, hw.max_wheel_speed)
+        return max(duration / 2, duration + speed / (2 * hw.max_accel) - STOP_LEAD_S)
 
     async def stop(self, request: web.Request) -> web.Response:
         """Answers once hwbridge has confirmed the stop: the board runs zero duty."""
