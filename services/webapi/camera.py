@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import socket
+import struct
 import threading
 from collections.abc import Iterator
 
@@ -37,6 +39,8 @@ MAX_WATCHERS = 32
 """Clients watching ``/camera/get`` at once; one more is answered 503."""
 STALL_S = 5.0
 """A watcher whose client takes no part for this long is disconnected, s."""
+SEND_BUFFER = 128 * 1024
+"""Kernel send buffer of a watcher's socket, bytes (Linux keeps twice this): some frames in flight."""
 CHECK_S = 1.0
 """While no frame comes (no camera), a watcher looks this often whether its client left, s."""
 FIRST_FRAME_S = 1.0
@@ -174,6 +178,10 @@ class Camera:
             message = f"{MAX_WATCHERS} clients watch the camera already: try again later"
             return web.Response(status=503, body=msgspec.json.encode({"message": message}),
                                 content_type="application/json")
+        sock = request.transport.get_extra_info("socket") if request.transport is not None else None
+        if sock is not None:  # a bounded kernel buffer too: a client that stops reading is seen soon
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)
         response = ClosingStream(headers={"Content-Type": f"multipart/x-mixed-replace; boundary={BOUNDARY}"})
         await response.prepare(request)
         task = asyncio.current_task()
@@ -219,6 +227,9 @@ class Camera:
             self.node.limited.warning("camera stalled", "/camera/get: %s took no frame for %.0f s: disconnected",
                                       request.remote, STALL_S)
             if request.transport is not None:
+                sock = request.transport.get_extra_info("socket")
+                with contextlib.suppress(OSError, AttributeError):  # close with a reset: the kernel
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # keeps nothing
                 request.transport.abort()  # drop what waits for it: its memory goes with it
             raise ConnectionResetError("stalled client") from None
 
