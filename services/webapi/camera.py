@@ -3,7 +3,10 @@
 ``/camera/get`` is the old server's MJPEG stream, byte for byte (facts §5.2): one part per
 frame, ``--frame\\r\\nContent-Type: image/jpeg\\r\\n\\r\\n<JPEG>\\r\\n``, in a body that ends when
 the connection closes (no Content-Length, and no chunked encoding whatever HTTP version the
-client speaks: course clients cut the JPEGs out of the raw bytes). Each part is the newest
+client speaks: course clients cut the JPEGs out of the raw bytes). The bytes are the old
+server's, but each JPEG is sent with the next part's boundary and head right behind it, so a
+client that cuts a JPEG when it sees the next ``--frame`` has it at once, not a frame later.
+Each part is the newest
 frame, at the camera's capture rate: the frames come from ``camera/frames``, which the camera
 publishes only while something subscribes, and `Feed` subscribes only while an HTTP client
 watches. With ``[webapi] camera_get = "frame"`` it answers one JPEG instead (clients written
@@ -69,7 +72,7 @@ class Feed:
         self.key_expr = node.key(keys.FRAMES)
         self.watchers = 0
         self.part: bytes | None = None
-        """The newest frame as a ready multipart part (head, JPEG, CRLF)."""
+        """The newest frame ready to send: its JPEG, CRLF, and the next part's head (`tail`)."""
         self.stamp = 0
         """Its capture stamp, ns."""
         self.seq = 0
@@ -124,7 +127,7 @@ class Feed:
 
     def show(self, image: m.Image) -> None:
         """Make ``image`` the newest frame and wake the watchers."""
-        self.part, self.stamp = HEAD + image.data + b"\r\n", image.stamp
+        self.part, self.stamp = tail(image.data), image.stamp
         self.seq += 1
         changed, self._changed = self._changed, asyncio.Event()
         changed.set()
@@ -136,6 +139,11 @@ class Feed:
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(self._changed.wait(), timeout)
         return self.seq > seq and self.part is not None
+
+
+def tail(jpeg: bytes) -> bytes:
+    """A JPEG as the stream sends it: the part's end, then the next part's boundary and head."""
+    return jpeg + b"\r\n" + HEAD
 
 
 def leaving(request: web.Request) -> bool:
@@ -198,6 +206,7 @@ class Camera:
 
     async def _send(self, request: web.Request, response: ClosingStream) -> None:
         seq, sent = self.feed.seq, -1
+        await self._write(request, response, HEAD)
         if self.feed.part is not None:
             seq -= 1  # others watch: their newest frame first
         else:
@@ -209,7 +218,7 @@ class Camera:
             else:
                 if self.feed.seq == seq:
                     sent = first.stamp
-                    await self._write(request, response, HEAD + first.data + b"\r\n")
+                    await self._write(request, response, tail(first.data))
         while not leaving(request):
             if not await self.feed.newer(seq, CHECK_S):
                 continue  # no camera (yet): keep the stream open, as the old server did
