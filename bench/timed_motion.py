@@ -94,6 +94,14 @@ async def run(config: Path, port: int, demands: list[int], t: float, raw: bool) 
     async with Node("bench", cfg) as node, AsyncRobot(config=cfg, timeout=10) as robot, \
             aiohttp.ClientSession() as http:
         await robot.ready(keys.WHEELS.name)
+        for _ in range(600):  # the web API is up (a busy machine starts it late)
+            try:
+                async with http.get(f"http://127.0.0.1:{port}/robot/get/encoder") as r:
+                    if r.status == 200:
+                        break
+            except aiohttp.ClientConnectionError:
+                pass
+            await asyncio.sleep(0.1)
 
         async def over_http(demand: int, t: float, accel: float) -> None:
             query = {"value": f"{demand},{demand}", "time": str(t)}

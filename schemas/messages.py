@@ -440,11 +440,18 @@ class SimControl(Message):
     * ``delay_replies``: the board's next ``count`` replies leave ``seconds`` late (and what
       follows them waits behind them, as on a real line).
     * ``mark``: start a new window for ``peak_duty`` (its value now is the duty applied now).
+    * ``place``: put the robot at ``x``, ``y`` (m), ``theta`` (rad), wheels at rest. Only the
+      truth jumps: the encoders do not, so odometry carries on from where it was (docs/sim.md).
+    * ``reset``: the world as it started: the robot at the origin at rest, the pack full, no
+      wheel stalled (the encoders and odometry carry on, as with ``place``).
+    * ``pause`` / ``resume``: freeze the world (the robot stays where it is, its encoders do not
+      count) and let it go again; the board keeps running, so a stop still reaches it.
     """
 
     action: Literal["read", "set_battery", "press_button", "hold_button", "release_button",
                     "set_dip", "stall", "inject_noise", "drop_bytes", "set_gpio",
-                    "force_descriptor", "delay_replies", "mark"] = "read"
+                    "force_descriptor", "delay_replies", "mark",
+                    "place", "reset", "pause", "resume"] = "read"
     volts: float = 0.0
     """V."""
     button: int = 10
@@ -462,6 +469,12 @@ class SimControl(Message):
     level: int = 0
     sensors: int = -1
     actuators: int = -1
+    x: float = 0.0
+    """``place``: m, world frame."""
+    y: float = 0.0
+    """``place``: m, world frame."""
+    theta: float = 0.0
+    """``place``: rad, counter-clockwise from +x."""
 
 
 class SimState(Message):
@@ -515,6 +528,8 @@ class SimState(Message):
     still since)."""
     leds: int = 0
     """The board's LEDs lit now, bit n-1 = LED n (PenguinPi: 1 red, 2..4 yellow); 0 on the icoBoard."""
+    paused: bool = False
+    """The world is frozen (``pause``): the robot does not move until ``resume``."""
 
 
 class OledFrame(Message):

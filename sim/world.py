@@ -240,6 +240,29 @@ class World:
         with self._lock:
             self._pose = (float(x), float(y), wrap_angle(theta))
 
+    def place(self, x: float, y: float, theta: float) -> None:
+        """Pick the robot up and put it down at (x m, y m, theta rad), its wheels at rest.
+
+        Only the pose jumps: the encoders keep their counts (a wheel turned in the air would
+        count; one carried does not), so whatever integrates them carries on without a jump.
+        ValueError for a non-finite number.
+        """
+        for name, value in (("x", x), ("y", y), ("theta", theta)):
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value}")
+        with self._lock:
+            self._pose = (float(x), float(y), wrap_angle(theta))
+            self._speed = [0.0, 0.0]
+
+    def reset(self) -> None:
+        """The world as it started: the robot at the origin at rest, the pack full, no wheel
+        stalled. The encoders keep their counts (as in `place`)."""
+        with self._lock:
+            self._pose = (0.0, 0.0, 0.0)
+            self._speed = [0.0, 0.0]
+            self._stalled = [False, False]
+            self._ocv = FULL_VOLTAGE
+
     def counts(self) -> tuple[int, int]:
         """Encoder counts (left, right), unbounded; forward motion increases both."""
         with self._lock:

@@ -32,7 +32,7 @@ import argcomplete
 from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
 VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
-                "scaffold", "completion")
+                "sim", "scaffold", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\
