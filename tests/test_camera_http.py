@@ -274,7 +274,8 @@ def test_clients_that_never_read_cost_bounded_memory_and_do_not_slow_others(stac
         # would make it a reader again: the kernel's TCP state of the socket).
         deadline = time.monotonic() + STALL_S + 30
         while any(tcp_state(sock) == TCP_ESTABLISHED for sock in stalled):
-            assert time.monotonic() < deadline, ("clients that never read are still connected", [tcp_state(s) for s in stalled], stack.webapi.output[-2000:])
+            assert time.monotonic() < deadline, ("clients that never read are still connected",
+                                                 [tcp_state(s) for s in stalled], stack.webapi.output[-2000:])
             time.sleep(0.2)
         decode(reader.jpeg()[0])  # and the reader still gets frames
         assert "Traceback" not in stack.webapi.output, stack.webapi.output[-3000:]
@@ -304,6 +305,17 @@ def test_a_client_leaving_mid_part_harms_nobody(stack, reset):
         other.close()
 
 
+def test_head_answers_the_headers_and_holds_nothing(stack):
+    for _ in range(MAX_WATCHERS + 1):
+        r = requests.head(stack.url("/camera/get"), timeout=5)
+        assert r.status_code == 200 and r.headers["Content-Type"].startswith("multipart/x-mixed-replace")
+    client = RawClient(stack.stream_port)  # no watcher slot was kept
+    try:
+        assert client.status_line == "HTTP/1.1 200 OK"
+    finally:
+        client.close()
+
+
 @pytest.mark.parametrize("query", ["?%ff%fe=%00", "?value=" + "9" * 4000, "?group=1&group=x", "?;;&&==",
                                    "?\u00e9t\u00e9=1", "?" + "&" * 1000])
 def test_bad_query_strings_are_ignored_as_the_old_server_did(stack, query):
@@ -311,10 +323,14 @@ def test_bad_query_strings_are_ignored_as_the_old_server_did(stack, query):
                        (stack.stream_port, "/camera/info")):
         r = requests.get(stack.url(path, port) + query, timeout=5)
         assert r.status_code == 200, (path, query, r.text)
-    client = RawClient(stack.stream_port, path="/camera/get" + query.replace(" ", "%20"))
+    client = RawClient(stack.stream_port, path="/camera/get" + requests.utils.requote_uri(query))
     try:
         assert client.status_line == "HTTP/1.1 200 OK"
         decode(client.jpeg()[0])
     finally:
         client.close()
+    # Raw bytes that are not HTTP (a non-ASCII request line): 400, and the next client is served.
+    bad = RawClient(stack.stream_port, path="/camera/get" + query)
+    bad.close()
+    assert bad.status_line.endswith(" 400 Bad Request") or query.isascii(), bad.status_line
     assert "Traceback" not in stack.webapi.output + stack.oneshot.output

@@ -180,6 +180,8 @@ class Camera:
 
     async def stream(self, request: web.Request) -> web.StreamResponse:
         """The MJPEG stream, until the client leaves (or takes nothing for `STALL_S`)."""
+        if request.method == "HEAD":  # the headers only: a HEAD must not hold a watcher
+            return web.Response(headers={"Content-Type": f"multipart/x-mixed-replace; boundary={BOUNDARY}"})
         if self.feed.watchers >= MAX_WATCHERS:
             self.node.limited.warning("camera full", "/camera/get: %d clients watch already; refused %s",
                                       MAX_WATCHERS, request.remote)
