@@ -140,7 +140,7 @@ async def measure(config_path: Path, seconds: float) -> None:
         await asyncio.to_thread(ask)
         print(f"  frame age of /camera/frame (one JPEG a request): {summary(one_shot)}")
     print(f"camera capture rate: {config.camera.fps:.0f} Hz; camera/image (the bus's thumbnails): "
-          f"{config.camera.image_rate_hz:.0f} Hz")
+          f"{config.camera.image_rate_hz:.0f} Hz; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
 
 def main() -> None:
