@@ -15,6 +15,8 @@ import contextlib
 import json
 import socket
 import struct
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -22,8 +24,10 @@ import cv2
 import numpy as np
 import pytest
 import requests
-from conftest import Proc, Robot, free_port
+from conftest import SIM_CONFIG, Proc, Robot, free_port
 
+from icefloe import config as config_mod
+from icefloe.cli.calibrate import sizes_note
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.camera.geometry import Intrinsics, save_calibration
@@ -334,3 +338,22 @@ def test_bad_query_strings_are_ignored_as_the_old_server_did(stack, query):
     bad.close()
     assert bad.status_line.endswith(" 400 Bad Request") or query.isascii(), bad.status_line
     assert "Traceback" not in stack.webapi.output + stack.oneshot.output
+
+
+# ----------------------------------------------------------------------------- config and calibrate
+
+
+def test_calibrate_says_what_it_wrote_for_which_size(tmp_path):
+    note = sizes_note(CALIBRATED, config_mod.load("sim"))
+    assert note.startswith("for 640x480 frames (the camera's capture size, camera/snapshot); the 320x240 JPEGs")
+    assert "fx 252.8 px  fy 252.4 px  cx 160.9 px  cy 120.6 px" in note and "/camera/info" in note
+
+
+@pytest.mark.parametrize("value", ['"single"', "1"])
+def test_a_bad_camera_get_starts_nothing_and_says_why_in_one_line(tmp_path, value):
+    path = tmp_path / "bad.toml"
+    path.write_text(f'extends = "{SIM_CONFIG}"\n[webapi]\nport = {free_port()}\ncamera_get = {value}\n')
+    done = subprocess.run([sys.executable, "-m", "icefloe.services.webapi", "--config", str(path)],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0 and done.stdout == ""
+    assert done.stderr.count("\n") == 1 and "webapi.camera_get" in done.stderr, done.stderr
