@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 
 import pytest
 from webapi_helpers import webapi, webapi_robot
@@ -32,8 +33,8 @@ async def sim_state(node) -> m.SimState:
 
 
 async def still(node) -> m.SimState:
-    """The simulator's state once both wheels have stopped turning."""
-    while True:
+    """The simulator's state once both wheels have stopped turning (within 30 s)."""
+    for _ in range(300):
         state = await sim_state(node)
         if abs(state.speed_left) + abs(state.speed_right) < 1e-4:
             await asyncio.sleep(0.2)
@@ -41,6 +42,7 @@ async def still(node) -> m.SimState:
             if abs(again.speed_left) + abs(again.speed_right) < 1e-4:
                 return again
         await asyncio.sleep(0.1)
+    raise AssertionError(f"the wheels still turn: {state}")
 
 
 async def test_timed_motions_cover_v_times_t_across_speeds(robot):
@@ -55,10 +57,15 @@ async def test_timed_motions_cover_v_times_t_across_speeds(robot):
             await asyncio.sleep(0.1)
         scales = {}
         for demand in (15, -40, 80):
-            before = await still(node)
-            status, _, body = await http.get("/robot/set/velocity", value=f"{demand},{demand}", time=str(T))
-            assert status == 200, body
-            after = await still(node)
+            for _ in range(3):
+                before, wall = await still(node), time.monotonic()
+                status, _, body = await http.get("/robot/set/velocity", value=f"{demand},{demand}", time=str(T))
+                assert status == 200, body
+                after = await still(node)
+                # hwbridge times the motion by the wall clock; a simulator starved of CPU drops steps
+                # (its time runs slow) and its robot covers less: then that run says nothing. Again.
+                if after.sim_time - before.sim_time > 0.995 * (time.monotonic() - wall):
+                    break
             moved = ((after.x - before.x) * math.cos(before.theta) + (after.y - before.y) * math.sin(before.theta))
             assert abs(after.theta - before.theta) < 0.02  # both wheels alike: straight
             want = demand * K * T

@@ -102,7 +102,7 @@ def make_detector(config: RobotConfig) -> Detector:
     cam = config.camera
     try:
         world = load_world(config.localizer.world)
-        sizes = {marker.id: marker.size for marker in world.markers}
+        sizes = world.sizes()  # markers, and the faces of marker blocks
     except ConfigError:
         sizes = {}  # no map: every marker is taken to have camera.marker_size
     return Detector(cam.dictionary, Intrinsics.from_config(cam), Mount.from_config(cam), sizes, cam.marker_size)

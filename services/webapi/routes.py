@@ -240,22 +240,25 @@ class Api:
         return self.state()
 
     def timed_duration(self, left: float, right: float, duration: float, accel: float) -> float:
-        """How long hwbridge holds an unramped timed motion so that it covers V·T
-        (docs/webapi.md, timed motion; measured by bench/timed_motion.py).
+        """How long hwbridge holds a timed motion so that it covers V·T (docs/webapi.md, timed
+        motion; measured by bench/timed_motion.py).
 
-        Without ``accel=`` the old server set the full speed at once; hwbridge instead raises a
-        wheel's speed at most ``hwbridge.max_accel`` (2 m/s²), which takes V/a and covers V²/2a
-        less than a step would: 4 % of V·T at 40 units for 1 s, 12 % at 90. Holding the speed
-        V/2a longer gives that back (the stop at the end is not slew-limited). V is the faster
-        wheel's speed, as hwbridge limits it (`max_wheel_speed`). What remains is `STOP_LEAD_S`:
-        after the stop the wheels coast on for ~0.1 s (the motors' lag), more than the firmware's
-        controller loses at the start. A ramped motion (``accel=``) is sent as asked.
+        hwbridge changes a wheel's speed at most ``hwbridge.max_accel`` = a (2 m/s²); the old
+        server's steps were instant. A speed V set at once (no ``accel=``) thus takes V/a to
+        reach and covers V²/2a less: 4 % of V·T at 40 units for 1 s, 12 % at 90. A ramp of A
+        seconds steeper than a (V/A > a) is followed late on the way up and cut by the stop at
+        its end on the way down: (V - aA)²/2a less in all (V²/2a for A = 0; nothing for a ramp
+        gentler than a). Holding the speed that much longer gives it back. V is the faster
+        wheel's speed as hwbridge limits it (`max_wheel_speed`). An unramped motion then covers
+        V·`STOP_LEAD_S` more (the wheels coast on after the stop), which comes off too.
         """
-        if accel > 0:
-            return duration
         hw = self.robot.config.hwbridge
         speed = min(max(abs(left), abs(right)) * self.unit, hw.max_wheel_speed)
-        return max(duration / 2, duration + speed / (2 * hw.max_accel) - STOP_LEAD_S)
+        if speed == 0:
+            return duration
+        behind = max(0.0, speed - hw.max_accel * accel) ** 2 / (2 * hw.max_accel)  # m
+        lead = STOP_LEAD_S if accel == 0 else 0.0
+        return max(duration / 2, duration + behind / speed - lead)
 
     async def stop(self, request: web.Request) -> web.Response:
         """Answers once hwbridge has confirmed the stop: the board runs zero duty."""
