@@ -58,6 +58,9 @@ CAPACITY_AH = 2.2
 INTERNAL_RESISTANCE = 0.1
 """Pack + wiring resistance, ohm."""
 
+PLACE_LIMIT = 1000.0
+"""`World.place` refuses a position farther than this from the origin, m (no room is that big)."""
+
 WHEELS = ("left", "right")
 
 
@@ -250,6 +253,9 @@ class World:
         for name, value in (("x", x), ("y", y), ("theta", theta)):
             if not math.isfinite(value):
                 raise ValueError(f"{name} must be a finite number, got {value}")
+        for name, value in (("x", x), ("y", y)):
+            if abs(value) > PLACE_LIMIT:
+                raise ValueError(f"{name} must be within ±{PLACE_LIMIT:g} m of the origin, got {value:g}")
         with self._lock:
             self._pose = (float(x), float(y), wrap_angle(theta))
             self._speed = [0.0, 0.0]

@@ -55,6 +55,10 @@ def test_place_moves_the_truth_not_the_encoders_and_pause_freezes_the_world() ->
     for bad in (math.nan, math.inf):
         with pytest.raises(ValueError, match="x must be a finite number"):
             world.place(bad, 0.0, 0.0)
+    where = world.pose
+    with pytest.raises(ValueError, match="y must be within ±1000 m of the origin, got 1e"):
+        world.place(0.0, 1e300, 0.0)
+    assert world.pose == where  # a refused place changed nothing
 
 
 # --------------------------------------------------------------------------- on the bus, from the CLI
