@@ -357,3 +357,34 @@ def test_a_bad_camera_get_starts_nothing_and_says_why_in_one_line(tmp_path, valu
                           capture_output=True, text=True, timeout=60)
     assert done.returncode != 0 and done.stdout == ""
     assert done.stderr.count("\n") == 1 and "webapi.camera_get" in done.stderr, done.stderr
+
+
+# ----------------------------------------------------------------------------- access control
+
+
+def test_a_robot_with_access_control_streams_to_anyone(make_robot):
+    """The camera routes only read: on a robot with access control they answer without a login,
+    or with a wrong one, and the stream's subscription gets through the guarded router."""
+    port = free_port()
+    robot = make_robot(f'[webapi]\nhost = "127.0.0.1"\nport = {port}\n', access_control=True)
+    for service in ("sim", "camera", "webapi"):
+        robot.start(service)
+    deadline = time.monotonic() + 90
+    while True:
+        with contextlib.suppress(requests.RequestException):
+            if requests.get(f"http://127.0.0.1:{port}/camera/frame", timeout=5).status_code == 200:
+                break
+        assert time.monotonic() < deadline, "no frame from the simulated camera:\n" + robot.procs[-1].output
+        time.sleep(0.2)
+    for auth in (None, ("nobody", "wrong")):
+        info = requests.get(f"http://127.0.0.1:{port}/camera/info", auth=auth, timeout=5)
+        assert info.status_code == 200 and info.json()["width"] == 320
+        with requests.get(f"http://127.0.0.1:{port}/camera/get", auth=auth, stream=True, timeout=10) as r:
+            assert r.status_code == 200 and "Transfer-Encoding" not in r.headers
+            body = b""
+            for chunk in r.raw.stream(4096):
+                body += chunk
+                if body.count(b"--frame") >= 4:
+                    break
+        for part in body.split(b"--frame")[1:3]:
+            decode(part.split(b"\r\n\r\n", 1)[1].removesuffix(b"\r\n"))
