@@ -10,7 +10,9 @@ Each part is the newest
 frame, at the camera's capture rate: the frames come from ``camera/frames``, which the camera
 publishes only while something subscribes, and `Feed` subscribes only while an HTTP client
 watches. With ``[webapi] camera_get = "frame"`` it answers one JPEG instead (clients written
-against a course simulator); ``/camera/frame`` always does.
+against a course simulator); ``/camera/frame`` always does. Such clients ask again and again:
+after a one-JPEG request the web API follows ``camera/frames`` for `LINGER_S` more, so the
+next request is answered at once with the newest frame, without a query to the camera.
 
 A slow client never slows the others or grows the service's memory: each watcher sends the
 newest frame when its socket takes it (the frames it could not take are skipped, never
@@ -46,6 +48,10 @@ SEND_BUFFER = 128 * 1024
 """Kernel send buffer of a watcher's socket, bytes (Linux keeps twice this): some frames in flight."""
 CHECK_S = 1.0
 """While no frame comes (no camera), a watcher looks this often whether its client left, s."""
+FRESH_S = 0.5
+"""A followed frame older than this is not answered (the camera may have stopped): ask it, s."""
+LINGER_S = 5.0
+"""After a one-JPEG request, ``camera/frames`` is followed this long for the next, s."""
 FIRST_FRAME_S = 1.0
 """How long a new watcher's first part (a ``camera/frame`` query) may take, s."""
 
@@ -73,6 +79,10 @@ class Feed:
         self.watchers = 0
         self.part: bytes | None = None
         """The newest frame ready to send: its JPEG, CRLF, and the next part's head (`tail`)."""
+        self.image: m.Image | None = None
+        """The newest frame as it came."""
+        self.arrived = 0.0
+        """When it came (the loop's clock), s."""
         self.stamp = 0
         """Its capture stamp, ns."""
         self.seq = 0
@@ -83,25 +93,58 @@ class Feed:
         self._lock = threading.Lock()
         self._pending: tuple[bytes, str] | None = None
         self._wake_pending = False
+        self._linger: asyncio.TimerHandle | None = None
+        self._linger_until = 0.0
 
     @contextlib.contextmanager
     def watch(self) -> Iterator[None]:
-        self.watchers += 1
-        if self._subscriber is None:
-            self._subscriber = self.node.session.declare_subscriber(self.key_expr, self._on_sample)
+        self._acquire()
         try:
             yield
         finally:
-            self.watchers -= 1
-            if self.watchers == 0:
-                self.close()
+            self._release()
+
+    def keep(self, seconds: float) -> None:
+        """Follow the frames for ``seconds`` more (after a one-JPEG request: the next one comes soon)."""
+        self._linger_until = self._loop.time() + seconds
+        if self._linger is None:
+            self._acquire()
+            self._linger = self._loop.call_later(seconds, self._lingered)
+
+    def _lingered(self) -> None:
+        left = self._linger_until - self._loop.time()
+        if left > 0:
+            self._linger = self._loop.call_later(left, self._lingered)
+            return
+        self._linger = None
+        self._release()
+
+    def _acquire(self) -> None:
+        self.watchers += 1
+        if self._subscriber is None:
+            self._subscriber = self.node.session.declare_subscriber(self.key_expr, self._on_sample)
+
+    def _release(self) -> None:
+        self.watchers -= 1
+        if self.watchers == 0:
+            self.close()
+
+    def fresh(self, within: float) -> m.Image | None:
+        """The newest frame if it came in the last ``within`` s (the camera still sends), else None."""
+        if self.image is not None and self._loop.time() - self.arrived <= within:
+            return self.image
+        return None
 
     def close(self) -> None:
+        if self._linger is not None:
+            self._linger.cancel()
+            self._linger = None
+            self.watchers -= 1
         subscriber, self._subscriber = self._subscriber, None
         if subscriber is not None:
             with contextlib.suppress(Exception):  # the session is closing
                 subscriber.undeclare()
-        self.part = None  # nobody watches: hold no frame
+        self.part = self.image = None  # nobody watches: hold no frame
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Zenoh's thread: keep only the newest payload and wake the loop once. Never block.
@@ -127,7 +170,8 @@ class Feed:
 
     def show(self, image: m.Image) -> None:
         """Make ``image`` the newest frame and wake the watchers."""
-        self.part, self.stamp = tail(image.data), image.stamp
+        self.part, self.image, self.stamp = tail(image.data), image, image.stamp
+        self.arrived = self._loop.time()
         self.seq += 1
         changed, self._changed = self._changed, asyncio.Event()
         changed.set()
@@ -168,8 +212,12 @@ class Camera:
         return await (self.frame(request) if self.single else self.stream(request))
 
     async def frame(self, request: web.Request) -> web.Response:
-        """One JPEG: the newest frame (``camera/frame``), its capture stamp in ``X-Frame-Stamp`` (ns)."""
-        image: m.Image = await self.node.query(keys.FRAME, timeout=self.timeout)
+        """One JPEG: the newest frame, its capture stamp in ``X-Frame-Stamp`` (ns). From the frames
+        followed since an earlier request, or else a ``camera/frame`` query."""
+        image = self.feed.fresh(FRESH_S)
+        self.feed.keep(LINGER_S)
+        if image is None:
+            image = await self.node.query(keys.FRAME, timeout=self.timeout)
         return web.Response(body=image.data, content_type="image/jpeg",
                             headers={"Cache-Control": "no-store", "X-Frame-Stamp": str(image.stamp)})
 
