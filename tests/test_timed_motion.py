@@ -13,7 +13,7 @@ import math
 import time
 
 import pytest
-from webapi_helpers import webapi, webapi_robot
+from webapi_helpers import board, webapi, webapi_robot
 
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -74,3 +74,23 @@ async def test_timed_motions_cover_v_times_t_across_speeds(robot):
         # A course's wheel calibration (timed drives at several speeds) finds one scale.
         assert max(scales.values()) / min(scales.values()) - 1 < 0.015, scales
 
+
+
+
+async def test_the_motion_sent_makes_up_for_hwbridges_slew_limit(make_robot):
+    """What `cmd/motion` the web API sends for a timed request (a stand-in hwbridge on the bus)."""
+    cases = [
+        ({"value": "40,40", "time": "0.3"}, 0.3 + 40 * K / 4 - 0.02),  # V/2a for hwbridge's slew, less the coast
+        ({"value": "100,-100", "time": "0.3"}, 0.3 + 0.5 / 4 - 0.02),  # V as hwbridge limits it: 0.5 m/s
+        ({"value": "90,90", "time": "0.5", "accel": "0.1"}, 0.5 + (90 * K - 0.2) ** 2 / (4 * 90 * K)),  # steep
+        ({"value": "20,20", "time": "0.6", "accel": "0.2"}, 0.6),  # a ramp gentler than 2 m/s²: as asked
+        ({"value": "0,0", "time": "0.3"}, 0.3),
+    ]
+    robot = webapi_robot(make_robot)
+    async with webapi(robot) as http, board(robot) as b:
+        for query, sent in cases:
+            status, _, body = await http.get("/robot/set/velocity", **query)
+            assert status == 200, body
+            motion = b.motions[-1]
+            assert motion.duration == pytest.approx(sent, abs=1e-9), query
+            assert motion.accel == float(query.get("accel", 0.0))
