@@ -320,6 +320,25 @@ def test_a_client_leaving_mid_part_harms_nobody(stack, reset):
         other.close()
 
 
+async def test_bad_payloads_on_camera_frames_are_dropped_in_a_line(stack):
+    client = await asyncio.to_thread(RawClient, stack.stream_port)
+    try:
+        await asyncio.to_thread(client.jpeg)
+        async with stack.robot.node("tester") as node:
+            for payload in (b"\x00garbage", b'{"stamp": "now"}', b"\x81\xa4data\xc0"):
+                for _ in range(20):  # a flood: still one line a second or so
+                    node.session.put(node.key(keys.FRAMES), payload)
+            for _ in range(10):
+                decode((await asyncio.to_thread(client.jpeg))[0])
+        deadline = time.monotonic() + 10
+        while f"icefloe/{stack.robot.name}/camera/frames" not in stack.webapi.output:
+            assert time.monotonic() < deadline, stack.webapi.output[-2000:]
+            await asyncio.sleep(0.1)
+        assert stack.webapi.output.count("camera/frames") <= 10 and "Traceback" not in stack.webapi.output
+    finally:
+        client.close()
+
+
 def test_head_answers_the_headers_and_holds_nothing(stack):
     for _ in range(MAX_WATCHERS + 1):
         r = requests.head(stack.url("/camera/get"), timeout=5)
