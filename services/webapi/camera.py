@@ -205,9 +205,6 @@ class Camera:
         self.feed = Feed(node)
         self.streams: set[asyncio.Task[object]] = set()
 
-    def routes(self) -> dict[str, object]:
-        return {"/camera/get": self.get, "/camera/frame": self.frame, "/camera/info": self.info}
-
     async def get(self, request: web.Request) -> web.StreamResponse:
         return await (self.frame(request) if self.single else self.stream(request))
 
@@ -257,7 +254,7 @@ class Camera:
     async def _send(self, request: web.Request, response: ClosingStream) -> None:
         seq, sent = self.feed.seq, -1
         await self._write(request, response, HEAD)
-        if self.feed.part is not None:
+        if self.feed.fresh(FRESH_S) is not None:
             seq -= 1  # others watch: their newest frame first
         else:
             # The newest frame at once, so a viewer starts before the subscription has reached the camera.
