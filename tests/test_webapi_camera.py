@@ -116,22 +116,25 @@ async def test_opencv_reads_the_simulated_camera(make_robot):
     robot = webapi_robot(make_robot, "[camera]\nimage_rate_hz = 10.0\n")
     for service in ("sim", "camera"):
         robot.start(service)
-    async with webapi(robot) as http, robot.node("tester") as node:
+    async with robot.node("tester") as node:
         images = node.subscribe(keys.IMAGE)
-        await asyncio.wait_for(anext(images), 30)  # the simulated camera is up
-        capture = await asyncio.to_thread(cv2.VideoCapture, http.base + "/camera/get")
-        try:
-            assert capture.isOpened()
-            ok, frame = await asyncio.to_thread(capture.read)
-            assert ok
-            cfg = robot.config.camera
-            assert frame.shape == (cfg.image_height, cfg.image_width, 3)
-            # The same picture as the camera's on the bus: the robot stands still, and only the
-            # simulated sensor noise and lighting (a gain of up to +-15 %) differ from frame to
-            # frame, so compare the pictures' structure (correlation), not their brightness.
-            image = await asyncio.wait_for(anext(images), 10)
-            bus = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_COLOR)
-            assert np.corrcoef(frame.astype(float).ravel(), bus.astype(float).ravel())[0, 1] > 0.9
-            assert frame.std() > 10  # a real picture (walls, floor, markers), not a blank frame
-        finally:
-            capture.release()
+        # The simulated camera is up before the web API starts: three processes starting at once
+        # on a busy machine may take webapi past its helper's 20 s.
+        await asyncio.wait_for(anext(images), 60)
+        async with webapi(robot) as http:
+            capture = await asyncio.to_thread(cv2.VideoCapture, http.base + "/camera/get")
+            try:
+                assert capture.isOpened()
+                ok, frame = await asyncio.to_thread(capture.read)
+                assert ok
+                cfg = robot.config.camera
+                assert frame.shape == (cfg.image_height, cfg.image_width, 3)
+                # The same picture as the camera's on the bus: the robot stands still, and only the
+                # simulated sensor noise and lighting (a gain of up to +-15 %) differ from frame to
+                # frame, so compare the pictures' structure (correlation), not their brightness.
+                image = await asyncio.wait_for(anext(images), 10)
+                bus = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_COLOR)
+                assert np.corrcoef(frame.astype(float).ravel(), bus.astype(float).ravel())[0, 1] > 0.9
+                assert frame.std() > 10  # a real picture (walls, floor, markers), not a blank frame
+            finally:
+                capture.release()
