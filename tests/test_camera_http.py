@@ -5,7 +5,7 @@ Real processes (router, simulator, camera, two webapi: one streaming, one with
 the behaviour the courses rely on: a raw socket that cuts JPEGs at the ``--frame`` boundary
 (HTTP/1.1 and 1.0), and a one-shot client (requests, 0.1 s timeout). Every JPEG is decoded
 with OpenCV. Then what a hostile student tries: clients that never read, one that leaves in
-the middle of a part, bad query strings. About 60 s on a quiet machine.
+the middle of a part, bad query strings. About 3 min on a 2-core machine at load average 25.
 """
 
 from __future__ import annotations
