@@ -10,7 +10,6 @@ answers 503 with a message naming the bus key.
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import json
 import logging
@@ -38,6 +37,7 @@ from .camera import Camera
 from .fanout import Hub
 from .pages import Pages
 from .params import InvalidCommand
+from .state import State
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
@@ -134,8 +134,9 @@ class Api:
         """Last held demands (left, right), for /motor/set/velocity."""
         self.encoder_zero = (0, 0)
         """Counts at the last /robot/hw/reset; the bus counts never reset."""
-        self.dip: int | None = None
         self.s4_presses = 0
+        self.follows = State(self.node)
+        """hw/wheels, odom/pose, hw/battery, io/dip: followed only while routes read them (`state`)."""
         self.camera = Camera(self.node, robot.timeout, single=config.webapi.camera_get == "frame")
         """/camera/get (the MJPEG stream, or one JPEG), /camera/frame, /camera/info (`camera`)."""
         self._text = self.node.publisher(keys.BOARD_TEXT)
@@ -184,14 +185,9 @@ class Api:
         return self.acl is None or permits(self.acl, who.user, message, key_expr)
 
     async def follow(self) -> None:
-        """Keep the DIP switch and count S4 presses (run as a task)."""
-        async with asyncio.TaskGroup() as tasks:
-            tasks.create_task(self._follow_dip())
-            tasks.create_task(self._follow_buttons())
-
-    async def _follow_dip(self) -> None:
-        async for dip in self.node.subscribe(keys.DIP):
-            self.dip = dip.value
+        """Count S4 presses (run as a task): every press counts, so this one is followed for good
+        (it costs nothing while nobody presses)."""
+        await self._follow_buttons()
 
     async def _follow_buttons(self) -> None:
         async for press in self.node.subscribe(keys.BUTTONS, latest=False):  # count every one
@@ -200,18 +196,28 @@ class Api:
 
     # ------------------------------------------------------------------ helpers
 
-    def encoders(self) -> tuple[int, int] | None:
+    async def counts(self) -> m.Wheels | None:
+        """The newest ``hw/wheels`` (after a pause, the first within the bus timeout), or None."""
+        return await self.follows.get(keys.WHEELS, self.robot.timeout)
+
+    async def encoders(self) -> tuple[int, int] | None:
         """Counts since the last /robot/hw/reset, wrapped to int16 as the firmware's."""
-        counts = self.robot.encoders
+        counts = await self.counts()
         if counts is None:
             return None
-        return (params.to_int16(counts.left - self.encoder_zero[0]),
-                params.to_int16(counts.right - self.encoder_zero[1]))
+        return (params.to_int16(counts.ticks_left - self.encoder_zero[0]),
+                params.to_int16(counts.ticks_right - self.encoder_zero[1]))
 
-    def state(self) -> web.Response:
+    async def get_dip(self) -> int | None:
+        """The DIP switch (hwbridge sends it once a second), or None if none came within the bus timeout."""
+        dip = await self.follows.get(keys.DIP, self.robot.timeout)
+        return None if dip is None else dip.value
+
+    async def state(self) -> web.Response:
         """The state JSON of §5.5, in the old pose convention (y right, theta clockwise)."""
-        left, right = self.encoders() or (None, None)  # null before hwbridge's first counts
-        pose = self.robot.pose
+        self.follows.follow(keys.WHEELS, keys.ODOM_POSE)
+        left, right = await self.encoders() or (None, None)  # null before hwbridge's first counts
+        pose = await self.follows.get(keys.ODOM_POSE, self.robot.timeout)
         body = {
             "encoder": {"left": left, "right": right},
             # Before the first pose the old server had integer zeros; so do we.
@@ -230,6 +236,7 @@ class Api:
     async def set_velocity(self, request: web.Request) -> web.Response:
         left, right = params.speeds(request.query, self.max_demand)
         duration, accel = params.timing(request.query, self.max_time)
+        self.follows.follow(keys.WHEELS, keys.ODOM_POSE)  # the answer's state: subscribed meanwhile
         if duration is None:
             await self.drive(left, right)
         else:
@@ -237,7 +244,7 @@ class Api:
             self.demand = [0.0, 0.0]
             await self.robot.set_velocity(left * self.unit, right * self.unit,
                                           self.timed_duration(left, right, duration, accel), accel)
-        return self.state()
+        return await self.state()
 
     def timed_duration(self, left: float, right: float, duration: float, accel: float) -> float:
         """How long hwbridge holds a timed motion so that it covers V·T (docs/webapi.md, timed
@@ -262,12 +269,13 @@ class Api:
 
     async def stop(self, request: web.Request) -> web.Response:
         """Answers once hwbridge has confirmed the stop: the board runs zero duty."""
+        self.follows.follow(keys.WHEELS, keys.ODOM_POSE)
         self.demand = [0.0, 0.0]
         await self.robot.stop()
-        return self.state()
+        return await self.state()
 
     async def get_encoder(self, request: web.Request) -> web.Response:
-        enc = self.encoders()
+        enc = await self.encoders()
         if enc is None:
             raise NotReachable(f"no encoder counts yet on {self.node.key(keys.WHEELS)}")
         return text(f"{enc[0]},{enc[1]}")
@@ -275,9 +283,9 @@ class Api:
     async def hw_reset(self, request: web.Request) -> web.Response:
         # The old MULTI_CLEAR_DATA stopped the motors and zeroed the counters.
         await self.stop(request)
-        counts = self.robot.encoders
+        counts = await self.counts()
         if counts is not None:
-            self.encoder_zero = (counts.left, counts.right)
+            self.encoder_zero = (counts.ticks_left, counts.ticks_right)
         return text()
 
     async def pose_reset(self, request: web.Request) -> web.Response:
@@ -288,7 +296,7 @@ class Api:
 
     async def motor_encoder(self, request: web.Request) -> web.Response:
         side = params.integer(request.query, "id", "Bad motor id", 0, 1)
-        enc = self.encoders()
+        enc = await self.encoders()
         if enc is None:
             raise NotReachable(f"no encoder counts yet on {self.node.key(keys.WHEELS)}")
         return text(enc[side])
@@ -304,22 +312,26 @@ class Api:
 
     # ------------------------------------------------------------------ battery
 
+    async def battery(self) -> m.BatteryReading:
+        reading = await self.follows.get(keys.HW_BATTERY, self.robot.timeout)
+        if reading is None:
+            raise NotReachable(f"nothing on {self.node.key(keys.HW_BATTERY)} within {self.robot.timeout} s "
+                               "(is the service running?)")
+        return reading
+
     async def voltage(self, request: web.Request) -> web.Response:
-        await self.robot.ready(keys.HW_BATTERY.name)
-        assert self.robot.battery is not None
-        return text(float(round(self.robot.battery.voltage * 1000, 3)))  # mV, as str(float)
+        return text(float(round((await self.battery()).voltage * 1000, 3)))  # mV, as str(float)
 
     async def current(self, request: web.Request) -> web.Response:
-        await self.robot.ready(keys.HW_BATTERY.name)
-        assert self.robot.battery is not None
-        return text(float(round(self.robot.battery.current * 1000, 3)))  # mA
+        return text(float(round((await self.battery()).current * 1000, 3)))  # mA
 
     # ------------------------------------------------------------------ HAT
 
     async def dip_get(self, request: web.Request) -> web.Response:
-        if self.dip is None:
+        dip = await self.get_dip()
+        if dip is None:
             raise NotReachable(f"no DIP switch reading yet on {self.node.key(keys.DIP)}")
-        return text(self.dip)
+        return text(dip)
 
     async def button_get(self, request: web.Request) -> web.Response:
         count, self.s4_presses = self.s4_presses, 0  # read resets, as HAT_GET_BUTTON did
@@ -405,6 +417,7 @@ class Api:
 
     async def _end_streams(self, app: web.Application) -> None:
         self.camera.close()
+        self.follows.close()
         await self.bridge.close()
         for caller in self._callers.values():
             caller.hub.close()
