@@ -1,0 +1,58 @@
+"""``icefloe record`` with no keys leaves ``camera/frames`` out, and the camera at rest.
+
+The camera sends ``camera/frames`` only while a subscriber matches it (Zenoh's matching
+status): a stand-in camera's publisher here, watched while the real ``icefloe record``
+process runs against the robot's real router. About 25 s on a busy 2-core machine.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+from conftest import Robot, wait_for
+from test_bag_cli import cli
+
+from icefloe.bag import Bag
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
+
+
+async def record_while_publishing(robot: Robot, *args: str) -> tuple[set[str], bool]:
+    """Run ``icefloe record -o FILE --duration 3 <args>`` while this process publishes hw/wheels,
+    camera/image, a key of the robot's own program and camera/frames (the last only while matched, as
+    the camera does); returns the keys recorded, and whether camera/frames was ever matched."""
+    out = robot.tmp / f"rec{len(robot.procs)}.mcap"
+    recorder = cli(robot, "record", "-o", str(out), "--duration", "3", *args, name="record")
+    matched = False
+    async with robot.node("tester") as node:
+        frames, wheels, image = (node.publisher(t) for t in (keys.FRAMES, keys.WHEELS, keys.IMAGE))
+        await wait_for(lambda: "recording" in recorder.output, timeout=30)
+        deadline = time.monotonic() + 2.5
+        while time.monotonic() < deadline:
+            now = time.time_ns()
+            matched |= frames.matched
+            if frames.matched:
+                frames.put(m.Image(stamp=now, width=1, height=1, data=b"\xff\xd8"))
+            wheels.put(m.Wheels(stamp=now, ticks_left=1, ticks_right=2, speed_left=0.0, speed_right=0.0))
+            image.put(m.Image(stamp=now, width=1, height=1, data=b"\xff\xd8"))
+            node.session.put(node.key("student/a/b"), b'{"x": 1}', encoding="application/json")
+            await asyncio.sleep(0.05)
+    assert recorder.popen.wait(20) == 0, recorder.output
+    return {e.channel.key for e in Bag([out]).entries()}, matched
+
+
+async def test_record_with_no_keys_leaves_camera_frames_out_and_the_camera_at_rest(robot: Robot) -> None:
+    recorded, matched = await record_while_publishing(robot)
+    key = lambda name: f"icefloe/{robot.name}/{name}"  # noqa: E731
+    assert not matched, "icefloe record with no keys switched camera/frames on"
+    assert key("camera/frames") not in recorded
+    assert {key("hw/wheels"), key("camera/image"), key("student/a/b")} <= recorded, recorded
+    assert "but camera/frames (--frames records it)" in robot.procs[-1].output
+
+
+async def test_record_frames_asks_for_them(robot: Robot) -> None:
+    recorded, matched = await record_while_publishing(robot, "--frames")
+    assert matched
+    assert f"icefloe/{robot.name}/camera/frames" in recorded
+    assert f"icefloe/{robot.name}/hw/wheels" in recorded
