@@ -151,3 +151,31 @@ def topic_of(key_expr: str) -> Topic | None:
         return TABLE.get(split(key_expr)[1])
     except ValueError:
         return None
+
+
+def all_but_frames(robot: str) -> list[str]:
+    """Key expressions that reach every key of ``robot`` but ``camera/frames``.
+
+    A subscriber whose key expression reaches ``camera/frames`` turns the camera's full-rate
+    JPEG stream on (~13 frames/s, ~300 KB/s: Zenoh's matching status), and Zenoh has no
+    "all but" in key expressions. So: keys of one chunk, of three or more, each namespace of
+    the key table but ``camera`` (``hw/*``, ``odom/*``, ...), and ``camera``'s other keys one by
+    one. Not reached: a key of two chunks in a namespace the key table does not have
+    (``icefloe/<robot>/my/thing``): name it, or follow ``icefloe/<robot>/**``. ``robot`` may be ``*``.
+    """
+    base = f"{PREFIX}/{robot}"
+    two = [t.name for t in TABLE.values() if t.name.count("/") == 1 and t.kind != "query"]
+    namespaces = sorted({name.split("/")[0] for name in two} - {"camera"})
+    camera = sorted(n for n in two if n.startswith("camera/") and n != FRAMES.name)
+    return [base, f"{base}/*", *(f"{base}/{ns}/*" for ns in namespaces), *(f"{base}/{n}" for n in camera),
+            f"{base}/*/*/*/**"]
+
+
+def without_frames(key_expr: str) -> list[str]:
+    """``key_expr`` as key expressions that leave ``camera/frames`` out when it is every key of a
+    robot (``icefloe/<robot>/**``, ``<robot>`` may be ``*``: `all_but_frames`); any other as it is
+    (one that names ``camera/frames`` or ``camera/*`` asks for the frames)."""
+    parts = key_expr.split("/")
+    if len(parts) == 3 and parts[0] == PREFIX and parts[2] == "**" and "**" not in parts[1]:
+        return all_but_frames(parts[1])
+    return [key_expr]

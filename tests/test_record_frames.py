@@ -1,8 +1,10 @@
-"""``icefloe record`` with no keys leaves ``camera/frames`` out, and the camera at rest.
+"""Who follows "every key of the robot" leaves ``camera/frames`` out, and the camera at rest:
+``icefloe record`` with no keys, ``icefloe topics``, the robot's page (the HTTP bridge's
+``/bus/icefloe/<robot>/**`` event stream). Asked for by name, the frames come.
 
 The camera sends ``camera/frames`` only while a subscriber matches it (Zenoh's matching
-status): a stand-in camera's publisher here, watched while the real ``icefloe record``
-process runs against the robot's real router. About 25 s on a busy 2-core machine.
+status): a stand-in camera's publisher here, watched while the real processes run against
+the robot's real router. About 90 s on a busy 2-core machine.
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ import asyncio
 import time
 
 from conftest import Robot, wait_for
-from test_bag_cli import cli
+from test_bag_cli import cli, icefloe
+from webapi_helpers import webapi, webapi_robot
 
 from icefloe.bag import Bag
 from icefloe.schemas import keys
@@ -56,3 +59,37 @@ async def test_record_frames_asks_for_them(robot: Robot) -> None:
     assert matched
     assert f"icefloe/{robot.name}/camera/frames" in recorded
     assert f"icefloe/{robot.name}/hw/wheels" in recorded
+
+
+async def test_topics_and_the_robots_page_leave_the_camera_at_rest_and_frames_by_name_wake_it(make_robot) -> None:
+    robot = webapi_robot(make_robot)
+    async with robot.node("camera") as node, webapi(robot) as http:
+        frames = node.publisher(keys.FRAMES)
+        matched = False
+
+        async def watch(seconds: float) -> bool:
+            seen, deadline = False, time.monotonic() + seconds
+            while time.monotonic() < deadline:
+                seen |= frames.matched
+                await asyncio.sleep(0.02)
+            return seen
+
+        watching = asyncio.create_task(watch(6.0))
+        status, out, err = await icefloe("topics", "--duration", "3", "--config", str(robot.config_path))
+        assert status == 0, err
+        assert "camera/frames" in out  # listed from the key table, not subscribed to
+        matched = await watching
+        assert not matched, "icefloe topics switched camera/frames on"
+        # The robot's page: every key of the robot, as Server-Sent Events.
+        page = asyncio.create_task(http.events(f"/bus/icefloe/{robot.name}/**", 1000, timeout=4.0, _rate="10"))
+        assert not await watch(3.0), "the page's event stream switched camera/frames on"
+        page.cancel()
+        await asyncio.gather(page, return_exceptions=True)
+        # Asked by name, the frames are followed.
+        asked = asyncio.create_task(http.events("/bus/camera/frames", 1000, timeout=6.0))
+        deadline = time.monotonic() + 5
+        while not frames.matched:
+            assert time.monotonic() < deadline, "/bus/camera/frames did not subscribe to camera/frames"
+            await asyncio.sleep(0.05)
+        asked.cancel()
+        await asyncio.gather(asked, return_exceptions=True)

@@ -196,24 +196,6 @@ class Recorder:
         self.status.show(self.line("recorded"), final=True)
 
 
-def all_but_frames(robot: str) -> list[str]:
-    """Key expressions that reach every key of ``robot`` but ``camera/frames``.
-
-    A subscriber whose key expression reaches ``camera/frames`` turns the camera's full-rate
-    JPEG stream on (~13 frames/s, ~300 KB/s: Zenoh's matching status), and Zenoh has no
-    "all but" in key expressions. So: keys of one chunk, of three or more, each namespace of
-    the key table but ``camera`` (``hw/*``, ``odom/*``, ...), and ``camera``'s other keys one by
-    one. Not reached: a key of two chunks in a namespace the key table does not have
-    (``icefloe/<robot>/my/thing``): name it, or record ``icefloe/<robot>/**``.
-    """
-    base = f"{keys.PREFIX}/{robot}"
-    two = [t.name for t in keys.TABLE.values() if t.name.count("/") == 1 and t.kind != "query"]
-    namespaces = sorted({name.split("/")[0] for name in two} - {"camera"})
-    camera = sorted(n for n in two if n.startswith("camera/") and n != keys.FRAMES.name)
-    return [base, f"{base}/*", *(f"{base}/{ns}/*" for ns in namespaces), *(f"{base}/{n}" for n in camera),
-            f"{base}/*/*/*/**"]
-
-
 async def record(args: argparse.Namespace, config: RobotConfig) -> int:
     robot = args.robot or config.name
     patterns = [resolve_key(k, robot) for k in args.keys]
@@ -221,7 +203,7 @@ async def record(args: argparse.Namespace, config: RobotConfig) -> int:
         patterns = [*patterns, keys.key(robot, keys.FRAMES)] if patterns else [f"{keys.PREFIX}/{robot}/**"]
     shown = ", ".join(patterns)
     if not patterns:
-        patterns = all_but_frames(robot)
+        patterns = keys.all_but_frames(robot)
         shown = f"{keys.PREFIX}/{robot}/** but {keys.FRAMES.name} (--frames records it)"
     excludes = [resolve_key(k, robot) for k in args.exclude]
     try:
