@@ -83,11 +83,6 @@ class State:
         if self._janitor is None:
             self._janitor = asyncio.create_task(self._sweep())
 
-    def peek(self, topic: keys.Topic) -> Any:
-        """The newest message of ``topic`` without waiting (None if none yet); follows it from now."""
-        self.follow(topic)
-        return self.followed[topic.name].newest()
-
     async def get(self, topic: keys.Topic, wait: float) -> Any:
         """The newest message of ``topic``; after a pause, the first to come within ``wait`` s (else None)."""
         self.follow(topic)
