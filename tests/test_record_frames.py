@@ -1,5 +1,5 @@
 """Who follows "every key of the robot" leaves ``camera/frames`` out, and the camera at rest:
-``icefloe record`` with no keys, ``icefloe topics``, the robot's page (the HTTP bridge's
+``icefloe record`` with no keys, ``icefloe topics``, ``echo``/``hz`` of ``**``, the robot's page (the HTTP bridge's
 ``/bus/icefloe/<robot>/**`` event stream). Asked for by name, the frames come.
 
 The camera sends ``camera/frames`` only while a subscriber matches it (Zenoh's matching
@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import time
 
+import pytest
 from conftest import Robot, wait_for
 from test_bag_cli import cli, icefloe
 from webapi_helpers import webapi, webapi_robot
@@ -61,11 +62,11 @@ async def test_record_frames_asks_for_them(robot: Robot) -> None:
     assert f"icefloe/{robot.name}/hw/wheels" in recorded
 
 
+@pytest.mark.timeout(400)  # four command-line runs: each starts a Python, slow on a busy machine
 async def test_topics_and_the_robots_page_leave_the_camera_at_rest_and_frames_by_name_wake_it(make_robot) -> None:
     robot = webapi_robot(make_robot)
     async with robot.node("camera") as node, webapi(robot) as http:
         frames = node.publisher(keys.FRAMES)
-        matched = False
 
         async def watch(seconds: float) -> bool:
             seen, deadline = False, time.monotonic() + seconds
@@ -74,12 +75,30 @@ async def test_topics_and_the_robots_page_leave_the_camera_at_rest_and_frames_by
                 await asyncio.sleep(0.02)
             return seen
 
-        watching = asyncio.create_task(watch(6.0))
-        status, out, err = await icefloe("topics", "--duration", "3", "--config", str(robot.config_path))
-        assert status == 0, err
+        async def matched_while(*args: str) -> tuple[bool, str]:
+            """Whether camera/frames was matched while ``icefloe <args>`` ran (start to end)."""
+            seen, done = False, asyncio.Event()
+
+            async def look() -> None:
+                nonlocal seen
+                while not done.is_set():
+                    seen |= frames.matched
+                    await asyncio.sleep(0.02)
+
+            looking = asyncio.create_task(look())
+            _, out, err = await icefloe(*args, "--config", str(robot.config_path), timeout=150.0)
+            done.set()
+            await looking
+            return seen, out + err
+
+        seen, out = await matched_while("topics", "--duration", "3")
         assert "camera/frames" in out  # listed from the key table, not subscribed to
-        matched = await watching
-        assert not matched, "icefloe topics switched camera/frames on"
+        assert not seen, "icefloe topics switched camera/frames on"
+        for verb in ("echo", "hz"):  # every key of the robot: the same
+            seen, _ = await matched_while(verb, "**", "--duration", "2")
+            assert not seen, f"icefloe {verb} '**' switched camera/frames on"
+        seen, _ = await matched_while("echo", "camera/frames", "--duration", "2")
+        assert seen, "icefloe echo camera/frames did not subscribe to it"
         # The robot's page: every key of the robot, as Server-Sent Events.
         page = asyncio.create_task(http.events(f"/bus/icefloe/{robot.name}/**", 1000, timeout=4.0, _rate="10"))
         assert not await watch(3.0), "the page's event stream switched camera/frames on"
