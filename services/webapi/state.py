@@ -39,7 +39,7 @@ class Followed:
         self.topic = topic
         self.key_expr = node.key(topic)
         self.value: Any = None
-        self.used = time.monotonic()
+        self.used = self.made = time.monotonic()
         self._node = node
         self._sub = node.session.declare_subscriber(self.key_expr, zenoh.handlers.RingChannel(1))
 
@@ -84,10 +84,11 @@ class State:
             self._janitor = asyncio.create_task(self._sweep())
 
     async def get(self, topic: keys.Topic, wait: float) -> Any:
-        """The newest message of ``topic``; after a pause, the first to come within ``wait`` s (else None)."""
+        """The newest message of ``topic``; after a pause, the first to come within ``wait`` s of
+        subscribing (else None: a key nothing sends costs each later read no wait)."""
         self.follow(topic)
         followed = self.followed[topic.name]
-        deadline = time.monotonic() + wait
+        deadline = followed.made + wait
         while (value := followed.newest()) is None and time.monotonic() < deadline:
             await asyncio.sleep(POLL_S)
         return value
