@@ -400,9 +400,11 @@ class AsyncRobot:
     def __init__(self, name: str | None = None, *, connect: str | Sequence[str] | None = None,
                  config: str | Path | RobotConfig | None = None,
                  credentials: str | Path | None = None, timeout: float = 5.0,
-                 service: str = "client", clamp: bool = False) -> None:
+                 service: str = "client", clamp: bool = False, follow: bool = True) -> None:
         """``clamp``: leave speeds beyond the robot's limit to the robot, which clamps them (the
-        web API does: old clients count on that); by default they raise ValueError here."""
+        web API does: old clients count on that); by default they raise ValueError here.
+        ``follow``: keep the latest pose, wheels, battery, landmarks, localized pose and DIP
+        from `open` on (False: the web API, which subscribes only while an HTTP client reads)."""
         try:
             self.config = _config(name, connect, config, credentials)
         except ConfigError as exc:
@@ -418,6 +420,7 @@ class AsyncRobot:
         self._moved = False
         self.leds: Leds
         self.clamp = clamp
+        self.follow = follow
         self.buttons = Buttons()
         """The robot's buttons (see `Button`): ``robot.buttons["S4"].when_pressed = hello``."""
         self._info: m.RobotInfo | None = None
@@ -460,7 +463,7 @@ class AsyncRobot:
         self._stop = self.node.publisher(keys.STOP)
         self._oled = self.node.publisher(keys.OLED_TEXT)
         self.leds = Leds(self.node.publisher(keys.LEDS).put)
-        for name in self._latest:
+        for name in self._latest if self.follow else ():
             if name != keys.IMAGE.name:  # images are big: only once someone asks for one
                 self._follow(name)
         self._tasks.append(asyncio.create_task(self._follow_buttons()))

@@ -438,6 +438,9 @@ class Webapi(Section):
     """Largest wheel speed accepted, in PenguinPi firmware demand units (about 5.3 mm/s each)."""
     max_time: Seconds = 30.0
     """Longest timed motion accepted by /robot/set/velocity, s."""
+    camera_get: Literal["stream", "frame"] = "stream"
+    """What ``/camera/get`` answers: "stream", the old server's endless MJPEG stream; "frame", one
+    JPEG per request (for clients written against a course simulator that serves one image)."""
 
 
 class Zenoh(Section):

@@ -62,14 +62,23 @@ def _acl_part(name: str, **fill: str | list[str]) -> dict:
     return json.loads(zenoh.Config.from_json5(text).get_json("access_control"))  # Zenoh reads its JSON5
 
 
+TA_ROBOT = "*"
+"""The ``robot`` of the lab's TA account in its credentials file: no robot of its own, the
+simulator's handles of every one (``ta.json5``)."""
+
+
 def access_control(owners: Sequence[tuple[str, str]], lab_protocols: Sequence[str] = (),
                    localizers: Sequence[str] = ()) -> dict:
     """Zenoh's ``access_control`` for (robot, user) pairs: `everyone.json5` once, `owner.json5` per
-    robot, `localizer.json5` per user of ``localizers`` (the lab's external localizer), and
-    `lab-link.json5` when the router joins a lab over ``lab_protocols``."""
+    robot, `ta.json5` for the users whose robot is `TA_ROBOT`, `localizer.json5` per user of
+    ``localizers`` (the lab's external localizer), and `lab-link.json5` when the router joins a
+    lab over ``lab_protocols``."""
     read_only = [keys.key("*", topic) for topic in keys.READ_ONLY_QUERIES]
     parts = [_acl_part("everyone", read_only_queries=read_only)]
-    parts += [_acl_part("owner", robot=robot, user=user) for robot, user in owners]
+    parts += [_acl_part("owner", robot=robot, user=user) for robot, user in owners if robot != TA_ROBOT]
+    tas = sorted({user for robot, user in owners if robot == TA_ROBOT})
+    if tas:
+        parts.append(_acl_part("ta", users=tas))
     parts += [_acl_part("localizer", user=user) for user in localizers]
     if lab_protocols:
         parts.append(_acl_part("lab-link", protocols=sorted(set(lab_protocols))))
@@ -192,7 +201,7 @@ async def main(config: RobotConfig) -> None:
 
 
 def lab_owners(lab_dir: Path) -> list[Owner]:
-    """The robot and user of every credentials file in a folder."""
+    """The robot and user of every credentials file in a folder (a TA's: robot `TA_ROBOT`)."""
     from .credentials import read
 
     owners = [Owner(c.robot, c.user, c.password) for c in map(read, sorted(lab_dir.glob("*.credentials")))]
@@ -208,10 +217,15 @@ async def lab_main(config: RobotConfig, lab_dir: Path) -> None:
     if config.zenoh.lab:
         raise ConfigError(f"{config.source}: a lab router does not join another (zenoh.lab is set)")
     owners = lab_owners(lab_dir)
+    robots = [o.robot for o in owners if o.robot != TA_ROBOT]
+    if not robots:
+        raise ConfigError(f"{lab_dir}: only a TA's credentials: no robot to route for")
+    tas = [o.user for o in owners if o.robot == TA_ROBOT]
+    ta = f", TA account {', '.join(tas)}" if tas else ""
     # The lab's own credentials file (its robot: this config's name) is the lab's external
     # localizer's login: it alone may publish the robots' `extloc/pose` (docs/extloc.md).
     localizers = [o.user for o in owners if o.robot == config.name]
-    await serve(config, owners, f"lab router for {', '.join(o.robot for o in owners)}", localizers)
+    await serve(config, owners, f"lab router for {', '.join(robots)}{ta}", localizers)
 
 
 if __name__ == "__main__":

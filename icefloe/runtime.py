@@ -349,6 +349,12 @@ class Publisher(Generic[T]):
             priority=zenoh.Priority.REAL_TIME if topic.urgent else zenoh.Priority.DEFAULT,
         )
 
+    @property
+    def matched(self) -> bool:
+        """Does a subscriber match this key now (Zenoh's matching status)? A publisher whose
+        messages are costly to make makes them only then (the camera's ``camera/frames``)."""
+        return bool(self._pub.matching_status.matching)
+
     def put(self, message: T) -> None:
         if type(message) is not self._type:
             raise TypeError(f"{self.key_expr} carries {self._type.__name__}, not {type(message).__name__}")

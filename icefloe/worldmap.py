@@ -62,6 +62,25 @@ Obstacles stand on the floor: the simulated robot collides with them and stops
     yaw = 0.0                 # rad, CCW from +x (default 0)
     height = 0.3              # m (default 0.3)
 
+A world may also hold marker blocks: one id printed on several vertical faces of a cube, as
+courses print them (the same marker on four sides, so the robot sees it from anywhere)::
+
+    [[block]]
+    id = 12                   # ArUco id on every face (no other marker or block may use it)
+    x = 0.8                   # centre of the cube, m
+    y = 0.4
+    z = 0.10                  # height of the markers' centres (the cube's middle), m
+    side = 0.16               # edge of the cube, m
+    size = 0.12               # side of the black square on each face, m (less than `side`)
+    yaw = 0.0                 # direction face 0 points, rad; faces 1, 2, 3 turn by 90° each
+    faces = 4                 # how many faces carry the marker (1-4, counter-clockwise from face 0)
+
+A block is ONE landmark, at the cube's centre: the simulator renders each face
+(`WorldMap.faces`), the camera reports each face it sees (an id may then appear twice in one
+frame), and the localizer moves each sighting from the face to the cube's centre along that
+face's normal, merges the faces of one frame into one sighting, and uses it as a landmark at
+(x, y) (`WorldMap.landmarks`; docs/sim.md).
+
 World frame: x and y on the floor, z up, angles counter-clockwise from +x.
 """
 
@@ -227,13 +246,53 @@ def clearance(rect: Rectangle, x: float, y: float) -> float:
     return math.hypot(du, dv)
 
 
+class Block(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A cube with the same marker on up to four vertical faces (a ``[[block]]`` table): one landmark."""
+
+    id: Annotated[int, msgspec.Meta(ge=0)]
+    x: float
+    """Centre of the cube, world frame, m."""
+    y: float
+    """Centre of the cube, world frame, m."""
+    z: float
+    """Height of the markers' centres above the floor, m."""
+    side: Annotated[float, msgspec.Meta(gt=0)]
+    """Edge of the cube, m."""
+    size: Annotated[float, msgspec.Meta(gt=0)]
+    """Side of the black square on each face, m (less than ``side``)."""
+    yaw: float = 0.0
+    """Direction face 0 points, rad, counter-clockwise from +x; face k points yaw + k·90°."""
+    faces: Annotated[int, msgspec.Meta(ge=1, le=4)] = 4
+    """Faces that carry the marker, counter-clockwise from face 0."""
+
+    def __post_init__(self) -> None:
+        for key in ("x", "y", "z", "side", "size", "yaw"):
+            if not math.isfinite(getattr(self, key)):
+                raise ValueError(f"`{key}` must be a finite number")
+        if self.size >= self.side:
+            raise ValueError(f"`size` ({self.size} m) must be less than `side` ({self.side} m): "
+                             "the marker is printed on a face of the cube")
+
+    def face_markers(self) -> tuple[Marker, ...]:
+        """Each printed face as a `Marker`: at the face's centre, facing out."""
+        out = []
+        for k in range(self.faces):
+            yaw = self.yaw + k * math.pi / 2
+            out.append(Marker(id=self.id, x=self.x + self.side / 2 * math.cos(yaw),
+                              y=self.y + self.side / 2 * math.sin(yaw), z=self.z, size=self.size, yaw=yaw))
+        return tuple(out)
+
+
 class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """A named set of markers with unique ids (a world file: ``name`` and ``[[marker]]`` tables),
-    the calibration boards standing in it (``[[board]]``) and its obstacles (``[[obstacle]]``)."""
+    """A named set of markers and marker blocks, each id used once (a world file: ``name``,
+    ``[[marker]]`` and ``[[block]]`` tables), the calibration boards standing in it (``[[board]]``),
+    the markers on its floor for an overhead camera (``[[floor_marker]]``) and its obstacles
+    (``[[obstacle]]``)."""
 
     name: str = ""
     markers: tuple[Marker, ...] = msgspec.field(default=(), name="marker")
     boards: tuple[Board, ...] = msgspec.field(default=(), name="board")
+    blocks: tuple[Block, ...] = msgspec.field(default=(), name="block")
     floor_markers: tuple[FloorMarker, ...] = msgspec.field(default=(), name="floor_marker")
     obstacles: tuple[Obstacle, ...] = msgspec.field(default=(), name="obstacle")
 
@@ -242,8 +301,25 @@ class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         return min((clearance(o.rectangle(), x, y) for o in self.obstacles), default=math.inf)
 
     def marker(self, id: int) -> Marker | None:
-        """The marker with this ArUco id, or None if the world has none."""
+        """The marker (a ``[[marker]]``) with this ArUco id, or None if the world has none."""
         return next((m for m in self.markers if m.id == id), None)
+
+    def block(self, id: int) -> Block | None:
+        """The block with this ArUco id, or None."""
+        return next((b for b in self.blocks if b.id == id), None)
+
+    def faces(self) -> tuple[Marker, ...]:
+        """Every printed marker: the ``[[marker]]``s, then each face of each block (an id repeats
+        within a block). What a camera can see: the simulator renders these."""
+        return self.markers + tuple(f for b in self.blocks for f in b.face_markers())
+
+    def landmarks(self) -> dict[int, tuple[float, float]]:
+        """One position per id, world frame (x, y) in m: each marker's centre, each block's centre."""
+        return {**{m.id: (m.x, m.y) for m in self.markers}, **{b.id: (b.x, b.y) for b in self.blocks}}
+
+    def sizes(self) -> dict[int, float]:
+        """The black square's side per id, m (the camera measures distance with it)."""
+        return {f.id: f.size for f in self.faces()}
 
 
 def parse_world(data: dict[str, Any], source: str) -> WorldMap:
@@ -252,11 +328,14 @@ def parse_world(data: dict[str, Any], source: str) -> WorldMap:
         world = msgspec.convert(data, WorldMap)
     except msgspec.ValidationError as exc:
         raise ConfigError(field_error(source, exc)) from None
-    first: dict[int, int] = {}
-    for i, m in enumerate(world.markers):
-        if m.id in first:
-            raise ConfigError(f"{source}: marker[{i}].id: id {m.id} is already used by marker[{first[m.id]}]")
-        first[m.id] = i
+    first: dict[int, str] = {}
+    for table, items in (("marker", world.markers), ("block", world.blocks)):
+        for i, item in enumerate(items):
+            if item.id in first:
+                raise ConfigError(f"{source}: {table}[{i}].id: id {item.id} is already used by "
+                                  f"{first[item.id]} (one id is one landmark: to print it on several "
+                                  "faces, make it a [[block]])")
+            first[item.id] = f"{table}[{i}]"
     floor: dict[int, int] = {}
     for i, f in enumerate(world.floor_markers):
         if f.id in floor:

@@ -90,6 +90,14 @@ SIM_CONTROL = Topic("sim/control", m.SimControl, "query", reply=m.SimState)
 
 ODOM_RESET = Topic("odom/reset", m.PoseReset, "query", reply=m.Pose)
 SNAPSHOT = Topic("camera/snapshot", m.Stop, "query", reply=m.Image, read_only=True)
+FRAMES = Topic("camera/frames", m.Image, "out")
+"""Every captured frame as a JPEG of ``camera.image_width`` x ``image_height`` (what the web API's
+``/camera/get`` streams), published only while something subscribes to it: it costs nothing
+when nobody watches (subscribe to ``camera/image`` for a few frames a second)."""
+FRAME = Topic("camera/frame", m.Stop, "query", reply=m.Image, read_only=True)
+"""The latest frame as a JPEG of ``camera.image_width`` x ``image_height`` (web API ``/camera/frame``)."""
+CAMERA_INFO = Topic("camera/info", m.Stop, "query", reply=m.CameraInfo, read_only=True)
+"""The intrinsics of the ``image_width`` x ``image_height`` images (`CameraInfo`)."""
 INFO = Topic("info", m.Stop, "query", reply=m.RobotInfo, read_only=True)
 SHUTDOWN_REQUEST = Topic("power/request", m.ShutdownRequest, "query", reply=m.ShutdownNotice)
 MAP_GRID = Topic("map/grid", m.GridRequest, "query", reply=m.OccupancyGrid, read_only=True)
@@ -107,7 +115,7 @@ TABLE: dict[str, Topic] = {
         BOARD_SCREEN,
         WHEELS, LOOP, HW_BATTERY, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
         BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, EXTLOC_POSE, TRUTH, SIM_GPIO,
-        ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL,
+        ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL, FRAMES, FRAME, CAMERA_INFO,
         MAP_GRID, PLAN, NAV_PATH, NAV_STATUS,
         MAP_LANDMARKS, SLAM_POSE, SLAM_MAP,
     )
@@ -160,3 +168,31 @@ def topic_of(key_expr: str) -> Topic | None:
         return TABLE.get(split(key_expr)[1])
     except ValueError:
         return None
+
+
+def all_but_frames(robot: str) -> list[str]:
+    """Key expressions that reach every key of ``robot`` but ``camera/frames``.
+
+    A subscriber whose key expression reaches ``camera/frames`` turns the camera's full-rate
+    JPEG stream on (~13 frames/s, ~300 KB/s: Zenoh's matching status), and Zenoh has no
+    "all but" in key expressions. So: keys of one chunk, of three or more, each namespace of
+    the key table but ``camera`` (``hw/*``, ``odom/*``, ...), and ``camera``'s other keys one by
+    one. Not reached: a key of two chunks in a namespace the key table does not have
+    (``icefloe/<robot>/my/thing``): name it, or follow ``icefloe/<robot>/**``. ``robot`` may be ``*``.
+    """
+    base = f"{PREFIX}/{robot}"
+    two = [t.name for t in TABLE.values() if t.name.count("/") == 1 and t.kind != "query"]
+    namespaces = sorted({name.split("/")[0] for name in two} - {"camera"})
+    camera = sorted(n for n in two if n.startswith("camera/") and n != FRAMES.name)
+    return [base, f"{base}/*", *(f"{base}/{ns}/*" for ns in namespaces), *(f"{base}/{n}" for n in camera),
+            f"{base}/*/*/*/**"]
+
+
+def without_frames(key_expr: str) -> list[str]:
+    """``key_expr`` as key expressions that leave ``camera/frames`` out when it is every key of a
+    robot (``icefloe/<robot>/**``, ``<robot>`` may be ``*``: `all_but_frames`); any other as it is
+    (one that names ``camera/frames`` or ``camera/*`` asks for the frames)."""
+    parts = key_expr.split("/")
+    if len(parts) == 3 and parts[0] == PREFIX and parts[2] == "**" and "**" not in parts[1]:
+        return all_but_frames(parts[1])
+    return [key_expr]

@@ -494,14 +494,48 @@ class FollowStatus(Message):
 
 
 class Image(Message):
-    """``camera/image`` and the ``camera/snapshot`` query answer: one compressed frame."""
+    """``camera/image``, ``camera/frames`` and the ``camera/snapshot`` and ``camera/frame`` query
+    answers: one compressed frame."""
 
     stamp: int
+    """When the frame was captured, ns since the epoch."""
     width: int
     height: int
     data: bytes
     """The compressed image."""
     format: Literal["jpeg"] = "jpeg"
+
+
+class CameraInfo(Message):
+    """``camera/info`` query answer (and ``GET /camera/info``): the intrinsics of the images the
+    camera sends on ``camera/image``, ``camera/frames``, ``camera/frame`` and the web API's
+    ``/camera/get`` (``camera.image_width`` x ``camera.image_height``): its calibration, made at
+    the capture size, scaled to theirs. ``camera/snapshot`` is at the capture size (``capture_*``);
+    multiply ``fx``, ``cx`` by ``capture_width / width`` (and y alike) for it."""
+
+    width: int
+    """Width of the images these intrinsics are for, px."""
+    height: int
+    """Height of the images these intrinsics are for, px."""
+    fx: float
+    """Focal length along x, px."""
+    fy: float
+    """Focal length along y, px."""
+    cx: float
+    """Principal point x, px (0 = the centre of the left pixel column)."""
+    cy: float
+    """Principal point y, px (0 = the centre of the top pixel row)."""
+    camera_matrix: list[float]
+    """The 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] row by row (9 numbers, OpenCV's K)."""
+    dist_coeffs: list[float]
+    """OpenCV distortion coefficients (k1, k2, p1, p2, k3, ...); unitless, the same at any image size."""
+    capture_width: int
+    """Width of the frames the camera captures (and calibrates at), px."""
+    capture_height: int
+    """Height of the frames the camera captures, px."""
+    source: str
+    """Where the calibration came from: the calibration file's path, or "nominal" (``camera.focal_px``,
+    no distortion: the camera was never calibrated)."""
 
 
 class Landmark(Message):
@@ -587,11 +621,18 @@ class SimControl(Message):
     * ``delay_replies``: the board's next ``count`` replies leave ``seconds`` late (and what
       follows them waits behind them, as on a real line).
     * ``mark``: start a new window for ``peak_duty`` (its value now is the duty applied now).
+    * ``place``: put the robot at ``x``, ``y`` (m), ``theta`` (rad), wheels at rest. Only the
+      truth jumps: the encoders do not, so odometry carries on from where it was (docs/sim.md).
+    * ``reset``: the world as it started: the robot at the origin at rest, the pack full, no
+      wheel stalled (the encoders and odometry carry on, as with ``place``).
+    * ``pause`` / ``resume``: freeze the world (the robot stays where it is, its encoders do not
+      count) and let it go again; the board keeps running, so a stop still reaches it.
     """
 
     action: Literal["read", "set_battery", "press_button", "hold_button", "release_button",
                     "set_dip", "stall", "inject_noise", "drop_bytes", "set_gpio",
-                    "force_descriptor", "delay_replies", "mark"] = "read"
+                    "force_descriptor", "delay_replies", "mark",
+                    "place", "reset", "pause", "resume"] = "read"
     volts: float = 0.0
     """V."""
     button: int = 10
@@ -609,6 +650,12 @@ class SimControl(Message):
     level: int = 0
     sensors: int = -1
     actuators: int = -1
+    x: float = 0.0
+    """``place``: m, world frame."""
+    y: float = 0.0
+    """``place``: m, world frame."""
+    theta: float = 0.0
+    """``place``: rad, counter-clockwise from +x."""
 
 
 class SimState(Message):
@@ -666,6 +713,8 @@ class SimState(Message):
     """True while the robot pushes against an obstacle of the world."""
     collisions: int = 0
     """Times the robot has run into an obstacle since the simulator started."""
+    paused: bool = False
+    """The world is frozen (``pause``): the robot does not move until ``resume``."""
 
 
 class OledFrame(Message):

@@ -12,7 +12,8 @@ of one cell around the black square, as you would print them. Calibration boards
 (a world's ``[[board]]``: chessboards, or ChArUco boards from ``cv2.aruco``) are
 drawn the same way, with a white margin of one square; `CameraRenderer.board_corners`
 gives their inner corners' true pixels. Nearer things are drawn over farther ones
-(the lab room is empty and convex, so its markers never overlap).
+(the lab room is empty and convex, so its markers never overlap). A marker block's faces
+(`WorldMap.faces`) are drawn as markers; the cube's body is not drawn, and hides nothing.
 
 The lens is the intrinsics' own, distortion included: with distortion coefficients
 the frame is drawn through an ideal pinhole onto a larger canvas, then bent with
@@ -141,18 +142,19 @@ class CameraRenderer:
         self._dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
         self._cells = self._dictionary.markerSize + 2  # bits plus the black border
         self._rng = np.random.default_rng(seed)
-        ids = [m.id for m in world.markers]
+        self._faces = world.faces()  # markers, and each face of each block (an id may repeat)
+        ids = [m.id for m in self._faces]
         too_big = [i for i in ids if i >= self._dictionary.bytesList.shape[0]]
         if too_big:
             raise ValueError(f"world {world.name}: marker id {too_big[0]} is not in {dictionary}")
         # Per marker: the black square's corners and those of the square with its quiet border.
         self._black = np.array([marker_corners(m.x, m.y, m.z, m.yaw, m.size / 2)
-                                for m in world.markers]).reshape(-1, 4, 3)
+                                for m in self._faces]).reshape(-1, 4, 3)
         pad = (self._cells + 2) / self._cells
         self._quiet = np.array([marker_corners(m.x, m.y, m.z, m.yaw, m.size / 2 * pad)
-                                for m in world.markers]).reshape(-1, 4, 3)
-        self._normals = np.array([[math.cos(m.yaw), math.sin(m.yaw), 0.0] for m in world.markers]).reshape(-1, 3)
-        self._centres = np.array([[m.x, m.y, m.z] for m in world.markers]).reshape(-1, 3)
+                                for m in self._faces]).reshape(-1, 4, 3)
+        self._normals = np.array([[math.cos(m.yaw), math.sin(m.yaw), 0.0] for m in self._faces]).reshape(-1, 3)
+        self._centres = np.array([[m.x, m.y, m.z] for m in self._faces]).reshape(-1, 3)
         self._textures: dict[tuple[int, int], np.ndarray] = {}
         self._board_textures: dict[tuple[int, int], np.ndarray] = {}
         self._board_quads = np.array([rectangle_corners(np.array([b.x, b.y, b.z]), *board_axes(b.yaw, b.tilt)[:2],
@@ -322,7 +324,7 @@ class CameraRenderer:
             if kind == "board":
                 self._draw_board(image, i, self._project(boards_c[i]))
                 continue
-            marker = self.world.markers[i]
+            marker = self._faces[i]
             self._draw(image, marker.id, self._project(quiet_c[i]), self._project(black_c[i]))
             black = self._frame_pixels(black_c[i])
             inside = ((black >= 0) & (black <= [self.width - 1, self.height - 1])).all()

@@ -47,6 +47,9 @@ class SimClock:
         """Steps that started after their due time (caught up without sleeping)."""
         self.dropped = 0
         """Steps skipped because the thread fell more than `max_catch_up` steps behind."""
+        self.paused = False
+        """The world is frozen: the robot does not move, its encoders do not count; the boards
+        still tick (their timers, controllers and serial links run on), so a stop reaches them."""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
@@ -57,9 +60,10 @@ class SimClock:
         return self.steps * self.dt
 
     def step(self) -> None:
-        """One step: physics first, then every board sees the new state at the new time."""
+        """One step: physics first (unless `paused`), then every board sees the new state at the new time."""
         with self._lock:
-            self.world.step(self.dt)
+            if not self.paused:
+                self.world.step(self.dt)
             self.steps += 1
             now = self.now
             for board in self.boards:

@@ -66,6 +66,8 @@ INTERNAL_RESISTANCE = 0.1
 
 CONTACT_MARGIN = 0.002
 """A robot that ran into an obstacle is in contact with it until this far from it, m."""
+PLACE_LIMIT = 1000.0
+"""`World.place` refuses a position farther than this from the origin, m (no room is that big)."""
 
 WHEELS = ("left", "right")
 
@@ -287,6 +289,34 @@ class World:
         """Times the robot has run into an obstacle (each contact counted once)."""
         with self._lock:
             return self._collisions
+
+    def place(self, x: float, y: float, theta: float) -> None:
+        """Pick the robot up and put it down at (x m, y m, theta rad), its wheels at rest.
+
+        Only the pose jumps: the encoders keep their counts (a wheel turned in the air would
+        count; one carried does not), so whatever integrates them carries on without a jump.
+        ValueError for a non-finite number.
+        """
+        for name, value in (("x", x), ("y", y), ("theta", theta)):
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value}")
+        for name, value in (("x", x), ("y", y)):
+            if abs(value) > PLACE_LIMIT:
+                raise ValueError(f"{name} must be within ±{PLACE_LIMIT:g} m of the origin, got {value:g}")
+        with self._lock:
+            self._pose = (float(x), float(y), wrap_angle(theta))
+            self._speed = [0.0, 0.0]
+
+    def reset(self, pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+        """The world as it started: the robot at ``pose`` (its start: the origin unless the robot
+        config says, ``[sim] start_x`` ...) at rest, the pack full, no wheel stalled, no contact
+        with an obstacle. The encoders keep their counts (as in `place`)."""
+        with self._lock:
+            self._pose = (float(pose[0]), float(pose[1]), wrap_angle(pose[2]))
+            self._collided = False
+            self._speed = [0.0, 0.0]
+            self._stalled = [False, False]
+            self._ocv = FULL_VOLTAGE
 
     def counts(self) -> tuple[int, int]:
         """Encoder counts (left, right), unbounded; forward motion increases both."""

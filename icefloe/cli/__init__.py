@@ -34,7 +34,7 @@ import argcomplete
 from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
 VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
-                "extloc", "score", "grid", "scaffold", "doctor", "completion")
+                "extloc", "score", "grid", "sim", "scaffold", "doctor", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\

@@ -26,10 +26,11 @@ from .common import (
     cli_node,
     decode_json,
     describe,
-    drain,
+    drain_all,
     in_table,
     printable,
     resolve_key,
+    subscribe_all,
     unknown_key,
     warn,
 )
@@ -87,7 +88,7 @@ async def echo(args: argparse.Namespace, config: RobotConfig) -> int:
     count = 1 if args.once else args.count
     seen = 0
     async with cli_node(config) as node:
-        sub = node.subscribe_raw(key)
+        subs = subscribe_all(node, key)
         await look_before_listening(node, key, args.key, robot)
 
         def show(raw: RawSample) -> None:
@@ -101,7 +102,7 @@ async def echo(args: argparse.Namespace, config: RobotConfig) -> int:
             if count and seen >= count:
                 raise Done
 
-        await drain(sub, args.duration, show)
+        await drain_all(subs, args.duration, show)
     if not seen and args.duration:
         warn(f"nothing on {key} within {args.duration:g} s")
         return NOTHING_HEARD
@@ -113,13 +114,14 @@ async def hz(args: argparse.Namespace, config: RobotConfig) -> int:
     key = resolve_key(args.key, robot)
     total = 0
     async with cli_node(config) as node:
-        sub = node.subscribe_raw(key, maxsize=100_000)
+        subs = subscribe_all(node, key, maxsize=100_000)
         await look_before_listening(node, key, args.key, robot)
         end = time.monotonic() + (args.duration or float("inf"))
         while time.monotonic() < end:
             stamps: list[float] = []
-            await drain(sub, min(args.window, max(end - time.monotonic(), 0.05)),
-                        lambda raw, into=stamps: into.append(raw.received))
+            await drain_all(subs, min(args.window, max(end - time.monotonic(), 0.05)),
+                            lambda raw, into=stamps: into.append(raw.received))
+            stamps.sort()  # several subscriptions (`subscribe_all`): in the order received
             total += len(stamps)
             rate = (len(stamps) - 1) / (stamps[-1] - stamps[0]) if len(stamps) > 2 else 0.0
             print(f"{key}: {rate:.1f} Hz ({len(stamps)} messages in the last {args.window:g} s)", flush=True)

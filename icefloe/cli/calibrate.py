@@ -259,6 +259,17 @@ def point_config_at(config_file: Path, calibration: Path) -> None:
         raise
 
 
+def sizes_note(intrinsics: Intrinsics, config: RobotConfig) -> str:
+    """What a calibration file holds for which frame size, and what HTTP clients get of it."""
+    cam = config.camera
+    small = intrinsics.scaled(cam.image_width, cam.image_height)
+    k = small.camera_matrix
+    return (f"for {intrinsics.width}x{intrinsics.height} frames (the camera's capture size, camera/snapshot); "
+            f"the {small.width}x{small.height} JPEGs of camera/image and the web API's /camera/get get it scaled: "
+            f"fx {k[0, 0]:.1f} px  fy {k[1, 1]:.1f} px  cx {k[0, 2]:.1f} px  cy {k[1, 2]:.1f} px, same distortion "
+            f"(GET /camera/info, or the camera/info query, once the camera service has restarted)")
+
+
 def report(result: cal.Calibration, views: list[cal.View]) -> None:
     k, d = result.intrinsics.camera_matrix, result.intrinsics.dist_coeffs
     quality = "good" if result.rms < GOOD_RMS_PX else "usable" if result.rms < POOR_RMS_PX else "poor"
@@ -312,14 +323,16 @@ async def run(args: argparse.Namespace, config: RobotConfig) -> int:
     if foreign:
         calibration_file = Path(args.output).expanduser().resolve()
         save_calibration(calibration_file, intrinsics, result.rms)
-        print(f"wrote {calibration_file}\nOn robot {robot_name!r}, set [camera] calibration to it in its config, "
+        print(f"wrote {calibration_file} {sizes_note(intrinsics, config)}")
+        print(f"On robot {robot_name!r}, set [camera] calibration to it in its config, "
               f"then restart its camera service.")
         return 0
     config_file, calibration_file = calibration_paths(config, args.output)
     calibration_file.parent.mkdir(parents=True, exist_ok=True)
     save_calibration(calibration_file, intrinsics, result.rms)
     point_config_at(config_file, calibration_file)
-    print(f"wrote {calibration_file}\nset [camera] calibration to it in {config_file}\n"
+    print(f"wrote {calibration_file} {sizes_note(intrinsics, config)}")
+    print(f"set [camera] calibration to it in {config_file}\n"
           f"The camera service reads it when it starts: restart it (icefloe up: Ctrl-C and up again; "
           f"a robot: sudo systemctl restart icefloe@camera).")
     return 0

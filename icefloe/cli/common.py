@@ -132,6 +132,24 @@ async def drain(sub: Any, duration: float | None, handle: Callable[[RawSample], 
             await loop()
 
 
+async def drain_all(subs: list[Any], duration: float | None, handle: Callable[[RawSample], None]) -> None:
+    """`drain` several subscriptions at once; all end when one ends (``duration``, or `Done`)."""
+    tasks = [asyncio.ensure_future(drain(sub, duration, handle)) for sub in subs]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+
+def subscribe_all(node: Any, key_expr: str, maxsize: int = 1024) -> list[Any]:
+    """Raw subscriptions to ``key_expr``; "every key of a robot" (``icefloe/<robot>/**``) leaves
+    ``camera/frames`` out (`keys.without_frames`: reaching it would switch the camera's full-rate
+    stream on); name it to follow it."""
+    return [node.subscribe_raw(expr, maxsize=maxsize) for expr in keys.without_frames(key_expr)]
+
+
 # ---------------------------------------------------------------------- keys and their messages
 
 

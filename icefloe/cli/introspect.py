@@ -4,6 +4,7 @@ topics, info, services. Who declares what comes from the routers (icefloe/graph.
 from __future__ import annotations
 
 import argparse
+import asyncio
 from collections import defaultdict
 
 from .. import graph
@@ -43,8 +44,10 @@ async def topics(args: argparse.Namespace, config: RobotConfig) -> int:
     async with cli_node(config) as node:
         alive = await node.alive(args.robot or "*")
         robots = [args.robot] if args.robot else sorted({keys.split(t)[0] for t in alive}) or [config.name]
-        sub = node.subscribe_raw(f"{keys.PREFIX}/{args.robot or '*'}/**", maxsize=100_000)
-        await drain(sub, args.duration, lambda raw: counts.__setitem__(raw.key, counts[raw.key] + 1))
+        # Every key but camera/frames: subscribing to it would switch the camera's full-rate stream on.
+        subs = [node.subscribe_raw(expr, maxsize=100_000) for expr in keys.all_but_frames(args.robot or "*")]
+        await asyncio.gather(*(drain(sub, args.duration, lambda raw: counts.__setitem__(raw.key, counts[raw.key] + 1))
+                               for sub in subs))
         bus = await graph.read(node.session)
         me = own_zid(node)
     rows = {keys.key(r, name) for r in robots for name in keys.TABLE}

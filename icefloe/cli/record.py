@@ -198,7 +198,13 @@ class Recorder:
 
 async def record(args: argparse.Namespace, config: RobotConfig) -> int:
     robot = args.robot or config.name
-    patterns = [resolve_key(k, robot) for k in args.keys] or [f"{keys.PREFIX}/{robot}/**"]
+    patterns = [resolve_key(k, robot) for k in args.keys]
+    if args.frames:
+        patterns = [*patterns, keys.key(robot, keys.FRAMES)] if patterns else [f"{keys.PREFIX}/{robot}/**"]
+    shown = ", ".join(patterns)
+    if not patterns:
+        patterns = keys.all_but_frames(robot)
+        shown = f"{keys.PREFIX}/{robot}/** but {keys.FRAMES.name} (--frames records it)"
     excludes = [resolve_key(k, robot) for k in args.exclude]
     try:
         keys_filter = KeyFilter(patterns, excludes)
@@ -207,7 +213,7 @@ async def record(args: argparse.Namespace, config: RobotConfig) -> int:
     if args.nice:
         os.nice(args.nice)  # before the session opens: Zenoh's threads inherit it
     output = Path(args.output) if args.output else default_output(robot)
-    meta = {"robot": robot, "keys": " ".join(patterns), "exclude": " ".join(excludes),
+    meta = {"robot": robot, "keys": shown, "exclude": " ".join(excludes),
             "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
             "host": socket.gethostname(), "command": " ".join(["icefloe", *sys.argv[1:]])}
     async with Node("record", config, announce=False, retry=False) as node:
@@ -218,7 +224,7 @@ async def record(args: argparse.Namespace, config: RobotConfig) -> int:
         recorder = Recorder(writer, keys_filter)
         try:
             recorder.subs = [node.subscribe_raw(p, maxsize=RECORD_QUEUE) for p in patterns]
-            print(f"recording {', '.join(patterns)}" + (f" but {', '.join(excludes)}" if excludes else "") +
+            print(f"recording {shown}" + (f" but {', '.join(excludes)}" if excludes else "") +
                   f" to {output} (Ctrl-C to stop)", file=sys.stderr, flush=True)
             try:
                 await recorder.run(args.duration)
@@ -320,9 +326,12 @@ def register(verbs: argparse._SubParsersAction) -> None:
                          "JSON (Foxglove opens it as it is). Runs at low priority; Ctrl-C closes a valid file.")
     add_bus_arguments(p, robot_help="the robot to record (default: the config's)")
     keys_arg = p.add_argument("keys", nargs="*", metavar="KEY", help="key-table names (hw/wheels), full keys or "
-                              "key expressions (default: every key of the robot)")
+                              "key expressions (default: every key of the robot but camera/frames)")
     keys_arg.completer = key_names  # type: ignore[attr-defined]
     p.add_argument("-o", "--output", metavar="FILE.mcap", help="the file (default: <robot>-<date>-<time>.mcap)")
+    p.add_argument("--frames", action="store_true",
+                   help="record camera/frames too (every captured frame, ~300 KB/s: the camera sends it "
+                   "only while something subscribes)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--exclude", action="append", default=[], metavar="KEY",
                    help="leave out these keys (repeatable; e.g. camera/image)")

@@ -7,6 +7,10 @@
   ``camera/landmarks`` stamped with the frame's capture time.
 * ``camera/image``: a smaller JPEG at ``camera.image_rate_hz`` (the Wi-Fi is shared
   by a class); ``camera/snapshot``: one full-resolution JPEG of the latest frame.
+* ``camera/frames``: every captured frame as the smaller JPEG, sent by the capture thread
+  itself (no detection in the way), but only while something subscribes (the web API while
+  an HTTP client watches ``/camera/get``); ``camera/frame``: the latest as one smaller JPEG;
+  ``camera/info``: the intrinsics of the smaller JPEGs (see frames.py).
 * A missing or failing camera, or a bad frame, is logged and retried: the service
   never dies for it. Only when the camera's software is not installed at all (picamera2,
   an apt package of Raspberry Pi OS) does it exit at once with one line naming the package,
@@ -21,17 +25,17 @@ import contextlib
 import threading
 import time
 
-import cv2
 import numpy as np
 
 from icefloe.config import RobotConfig
 from icefloe.errors import ConfigError
-from icefloe.runtime import Node, run
+from icefloe.runtime import Node, Publisher, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.worldmap import load_world
 
 from .detection import BadFrame, Detector, check_frame
+from .frames import Frames, camera_info, jpeg
 from .geometry import Intrinsics, Mount
 from .sources import SimSource, Source, SourceError, open_source, picamera2_class
 
@@ -67,8 +71,9 @@ class LatestFrame:
 
 
 def capture(config: RobotConfig, node: Node, slot: LatestFrame, stop: threading.Event,
-            sources: list[Source]) -> None:
-    """The capture thread: open the source, read frames into ``slot``, reopen after failures."""
+            sources: list[Source], stream: Publisher[m.Image], small: Frames) -> None:
+    """The capture thread: open the source, read frames into ``slot``, reopen after failures;
+    while something subscribes to ``stream`` (``camera/frames``), send it each frame at once."""
     cam = config.camera
     source: Source | None = None
     while not stop.is_set():
@@ -78,7 +83,10 @@ def capture(config: RobotConfig, node: Node, slot: LatestFrame, stop: threading.
                 sources[:] = [source]
                 node.log.info("camera %r open", cam.source)
             stamp, image = source.read()
-            slot.put((stamp, check_frame(image, cam.width, cam.height)))
+            frame = (stamp, check_frame(image, cam.width, cam.height))
+            slot.put(frame)
+            if stream.matched:  # someone watches: ~2 ms at 320x240, no cost otherwise
+                stream.put(small.of(frame))
         except BadFrame as exc:
             node.limited.warning("bad frame", "camera %r: bad frame skipped (%s)", cam.source, exc)
         except Exception as exc:  # a camera that fails must not take the service with it
@@ -93,18 +101,11 @@ def capture(config: RobotConfig, node: Node, slot: LatestFrame, stop: threading.
         source.close()
 
 
-def jpeg(image: np.ndarray, quality: int) -> bytes:
-    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
-    if not ok:
-        raise BadFrame("JPEG encoding failed")
-    return data.tobytes()
-
-
 def make_detector(config: RobotConfig) -> Detector:
     cam = config.camera
     try:
         world = load_world(config.localizer.world)
-        sizes = {marker.id: marker.size for marker in world.markers}
+        sizes = world.sizes()  # markers, and the faces of marker blocks
     except ConfigError:
         sizes = {}  # no map: every marker is taken to have camera.marker_size
     return Detector(cam.dictionary, Intrinsics.from_config(cam), Mount.from_config(cam), sizes, cam.marker_size)
@@ -115,10 +116,13 @@ async def main(config: RobotConfig) -> None:
     if cam.source == "picamera2":
         picamera2_class()  # CameraMissing: one line, exit 2 (run() says it), no restart
     detector = make_detector(config)  # ConfigError for a bad calibration file: run() says so, exits
+    info = camera_info(cam, Intrinsics.from_config(cam))
     async with Node("camera", config) as node:
         slot, stop, sources = LatestFrame(), threading.Event(), []
+        small = Frames(cam)
         landmarks = node.publisher(keys.LANDMARKS)
         images = node.publisher(keys.IMAGE)
+        stream = node.publisher(keys.FRAMES)
 
         async def snapshot(_request: m.Stop) -> m.Image:
             frame = slot.latest
@@ -130,13 +134,25 @@ async def main(config: RobotConfig) -> None:
 
         node.queryable(keys.SNAPSHOT, snapshot)
 
+        async def latest_small(_request: m.Stop) -> m.Image:
+            frame = slot.latest
+            if frame is None:
+                raise SourceError(f"camera {cam.source!r} has delivered no frame yet")
+            return await asyncio.to_thread(small.of, frame)
+
+        async def intrinsics(_request: m.Stop) -> m.CameraInfo:
+            return info
+
+        node.queryable(keys.FRAME, latest_small)
+        node.queryable(keys.CAMERA_INFO, intrinsics)
+
         async def feed_truth() -> None:  # only for the simulated camera
             async for truth in node.subscribe(keys.TRUTH):
                 for source in sources:
                     if isinstance(source, SimSource):
                         source.set_truth(truth)
 
-        thread = threading.Thread(target=capture, args=(config, node, slot, stop, sources),
+        thread = threading.Thread(target=capture, args=(config, node, slot, stop, sources, stream, small),
                                   name="camera-capture", daemon=True)
         thread.start()
         truth_task = asyncio.create_task(feed_truth()) if cam.source == "sim" else None
@@ -160,9 +176,7 @@ async def main(config: RobotConfig) -> None:
                 landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
                 if now >= next_image:
                     next_image = now + image_period
-                    small = cv2.resize(image, (cam.image_width, cam.image_height), interpolation=cv2.INTER_AREA)
-                    data = await asyncio.to_thread(jpeg, small, cam.jpeg_quality)
-                    images.put(m.Image(stamp=stamp, width=cam.image_width, height=cam.image_height, data=data))
+                    images.put(await asyncio.to_thread(small.of, frame))
         finally:
             stop.set()
             if truth_task is not None:

@@ -50,6 +50,17 @@ class Intrinsics:
             raise ConfigError(f"camera.focal_px: must be > 0 pixels, got {camera.focal_px}")
         return cls.nominal(camera.focal_px, camera.width, camera.height)
 
+    def scaled(self, width: int, height: int) -> Intrinsics:
+        """The same lens for the frame resized to ``width`` x ``height`` (as the camera resizes it
+        for ``camera/image`` and the web API): focal lengths scale with the size; the principal
+        point too, about pixel centres (OpenCV's pixel (0, 0) is the centre of the first pixel,
+        so the image's left edge is at -0.5); distortion is in normalised coordinates, unchanged."""
+        sx, sy = width / self.width, height / self.height
+        k = self.camera_matrix.copy()
+        k[0, 0], k[0, 1], k[0, 2] = k[0, 0] * sx, k[0, 1] * sx, (k[0, 2] + 0.5) * sx - 0.5
+        k[1, 1], k[1, 2] = k[1, 1] * sy, (k[1, 2] + 0.5) * sy - 0.5
+        return Intrinsics(k, self.dist_coeffs.copy(), width, height)
+
 
 def load_calibration(path: str | Path, width: int, height: int) -> Intrinsics:
     """Read an OpenCV FileStorage file (YAML or JSON) written by a calibration (docs/camera.md).

@@ -15,7 +15,9 @@ from icefloe.logs import LimitedLog
 from icefloe.schemas import messages as m
 from icefloe.worldmap import load_world
 
+from ..camera.geometry import Mount
 from ..odometry.model import wrap_angle
+from .blocks import to_centres
 from .ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sighting
 
 
@@ -26,7 +28,7 @@ def make_ekf(config: RobotConfig) -> Ekf:
     world = load_world(c.world)
     noise = Noise(c.sigma_range, c.sigma_range_rel, c.sigma_bearing,
                   c.odom_sigma_d, c.odom_sigma_theta, c.odom_sigma_theta_d)
-    return Ekf({mk.id: (mk.x, mk.y) for mk in world.markers}, noise, gate_chi2=c.gate_chi2,
+    return Ekf(world.landmarks(), noise, gate_chi2=c.gate_chi2,
                mean=(c.initial_x, c.initial_y, c.initial_theta),
                sigma=(c.initial_sigma_xy, c.initial_sigma_xy, c.initial_sigma_theta))
 
@@ -55,6 +57,9 @@ class Localizer:
 
     def __init__(self, config: RobotConfig, log: logging.Logger) -> None:
         self.ekf = make_ekf(config)
+        self._half_sides = {b.id: b.side / 2 for b in load_world(config.localizer.world).blocks}
+        """Marker blocks: a sighting of a face is moved to the cube's centre (`blocks`)."""
+        self._mount = Mount.from_config(config.camera)
         self.log = log
         self._warn = LimitedLog(log, burst=1)
         """One line per second per kind of event (and how many more happened)."""
@@ -130,7 +135,8 @@ class Localizer:
                     f"the odometry: stale, not used; {self.stale_frames} so far")
                 return self.initialised
             u = increment(then, self._history[-1][1:])
-        sightings = [(lm.id, *shift_sighting(lm.range, lm.bearing, u)) for lm in frame.landmarks]
+        seen = to_centres(frame.landmarks, self._half_sides, self._mount)  # one sighting per block
+        sightings = [(lm.id, *shift_sighting(lm.range, lm.bearing, u)) for lm in seen]
         lost = 0 < self._relocalize_after <= self._rejected_in_a_row
         if not self.initialised or lost:
             known = [(self.ekf.landmarks[i], r, b) for i, r, b in sightings if i in self.ekf.landmarks]

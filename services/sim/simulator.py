@@ -145,7 +145,8 @@ class Simulator:
             peak_duty=self.world.peak_duty, ticks_left=ticks[0], ticks_right=ticks[1],
             integrator_left=integrators[0], integrator_right=integrators[1],
             zero_duty_since=self.world.zero_duty_since, counts_changed=self.world.counts_changed,
-            leds=leds, collided=self.world.collided, collisions=self.world.collisions)
+            leds=leds, collided=self.world.collided, collisions=self.world.collisions,
+            paused=self.clock.paused)
 
     # ------------------------------------------------------------------ handles
 
@@ -157,7 +158,10 @@ class Simulator:
                 self._apply(request)
         except (ValueError, TypeError) as exc:
             raise BadPayload(f"action {action!r}: {exc}") from None
-        if action != "read":
+        if action == "place":
+            log.info("sim/control: place at x %.3f m, y %.3f m, theta %.3f rad (the truth jumps; "
+                     "the encoders and odometry do not)", request.x, request.y, request.theta)
+        elif action != "read":
             log.info("sim/control: %s", action)
         return self.state()
 
@@ -195,6 +199,13 @@ class Simulator:
             model.line.drop(r.count, r.direction)
         elif r.action == "mark":
             self.world.mark()
+        elif r.action == "place":
+            self.world.place(r.x, r.y, r.theta)
+        elif r.action == "reset":
+            sim = self.config.sim
+            self.world.reset((sim.start_x, sim.start_y, sim.start_theta))
+        elif r.action in ("pause", "resume"):
+            self.clock.paused = r.action == "pause"
         elif r.action == "delay_replies":
             if isinstance(self.board, IcoBoardSim):
                 self.board.delay_replies(r.seconds, r.count)

@@ -35,7 +35,8 @@ async def main(config: RobotConfig) -> int | None:
                           "command it")
     # A short timeout for bus waits: an HTTP client should hear "not answering" soon. clamp: the
     # old server let the board clamp demands up to 100 (0.53 m/s); hwbridge clamps them the same.
-    robot = AsyncRobot(config=config, service="webapi", timeout=2.0, clamp=True)
+    # follow=False: the state the routes read is subscribed to only while they read it (`state`).
+    robot = AsyncRobot(config=config, service="webapi", timeout=2.0, clamp=True, follow=False)
     guest = None
     try:
         await robot.open(connect_timeout=math.inf)  # a service waits for its router to come up

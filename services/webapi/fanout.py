@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import zenoh
 
 from icefloe.logs import LimitedLog, printable
+from icefloe.schemas import keys
 
 log = logging.getLogger("icefloe.webapi")
 
@@ -170,7 +171,11 @@ class Channel:
         self._keep_latest = "*" not in key_expr
         self._declared: list[object] = []
         if samples:
-            self._declared.append(session.declare_subscriber(key_expr, self._on_sample))
+            # "Every key of a robot" leaves camera/frames out: a subscriber that reaches it turns the
+            # camera's full-rate stream on (the robot's page follows icefloe/<robot>/**, and shows
+            # camera/image). Asked by name (camera/frames, camera/*), it is followed.
+            for expr in keys.without_frames(key_expr):
+                self._declared.append(session.declare_subscriber(expr, self._on_sample))
         if liveliness:
             self._declared.append(session.liveliness().declare_subscriber(key_expr, self._on_sample, history=True))
         self._pump = asyncio.create_task(self._run())

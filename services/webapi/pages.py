@@ -120,7 +120,7 @@ class Pages:
             except InvalidCommand as exc:
                 note, status = exc.message, 400
         left, right = self.api.demand
-        enc = self.api.encoders()
+        enc = await self.api.encoders()
         body = f"""<form method="post">
 <label>Left <input name="Left" type="number" min="-{self.api.max_demand}" max="{self.api.max_demand}"
  value="{left:g}"></label>
@@ -141,7 +141,8 @@ class Pages:
             except InvalidCommand as exc:
                 note, status = exc.message, 400
         leds = self.api.robot.leds
-        dip = "-" if self.api.dip is None else str(self.api.dip)
+        dip_value = await self.api.get_dip()
+        dip = "-" if dip_value is None else str(dip_value)
         boxes = "".join(
             f'<label>LED {i} <select name="led{i}"><option value="0">off</option>'
             f'<option value="1"{" selected" if leds[i] else ""}>on</option></select></label> '

@@ -10,7 +10,6 @@ answers 503 with a message naming the bus key.
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import json
 import logging
@@ -34,17 +33,22 @@ from icefloe.schemas import messages as m
 from . import params
 from .auth import Login, owner_only
 from .bus import Bridge, Caller, HttpError, render
+from .camera import Camera
 from .fanout import Hub
 from .pages import Pages
 from .params import InvalidCommand
+from .state import State
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
-BOUNDARY = "frame"
 LOG_HISTORY = 50
 """Log lines a new stream of ``log`` starts with (the robot's page shows them)."""
 S4 = 3
 """io/buttons number of the HAT's S4, the button the old /hat/button/get counted."""
+STOP_LEAD_S = 0.02
+"""An unramped timed motion on the PenguinPi covers V·(T + 20 ms): the wheels coast ~0.1 s after
+the stop, more than its integral controller lags at the start (bench/timed_motion.py measures it;
+`Api.timed_duration` takes it off)."""
 
 
 def text(body: object = "") -> web.Response:
@@ -130,9 +134,11 @@ class Api:
         """Last held demands (left, right), for /motor/set/velocity."""
         self.encoder_zero = (0, 0)
         """Counts at the last /robot/hw/reset; the bus counts never reset."""
-        self.dip: int | None = None
         self.s4_presses = 0
-        self.streams: set[asyncio.Task[Any]] = set()
+        self.follows = State(self.node)
+        """hw/wheels, odom/pose, hw/battery, io/dip: followed only while routes read them (`state`)."""
+        self.camera = Camera(self.node, robot.timeout, single=config.webapi.camera_get == "frame")
+        """/camera/get (the MJPEG stream, or one JPEG), /camera/frame, /camera/info (`camera`)."""
         self._text = self.node.publisher(keys.BOARD_TEXT)
         self._screen = self.node.publisher(keys.BOARD_SCREEN)
         self._ledarray = self.node.publisher(keys.LEDARRAY)
@@ -179,14 +185,9 @@ class Api:
         return self.acl is None or permits(self.acl, who.user, message, key_expr)
 
     async def follow(self) -> None:
-        """Keep the DIP switch and count S4 presses (run as a task)."""
-        async with asyncio.TaskGroup() as tasks:
-            tasks.create_task(self._follow_dip())
-            tasks.create_task(self._follow_buttons())
-
-    async def _follow_dip(self) -> None:
-        async for dip in self.node.subscribe(keys.DIP):
-            self.dip = dip.value
+        """Count S4 presses (run as a task): every press counts, so this one is followed for good
+        (it costs nothing while nobody presses)."""
+        await self._follow_buttons()
 
     async def _follow_buttons(self) -> None:
         async for press in self.node.subscribe(keys.BUTTONS, latest=False):  # count every one
@@ -195,18 +196,28 @@ class Api:
 
     # ------------------------------------------------------------------ helpers
 
-    def encoders(self) -> tuple[int, int] | None:
+    async def counts(self) -> m.Wheels | None:
+        """The newest ``hw/wheels`` (after a pause, the first within the bus timeout), or None."""
+        return await self.follows.get(keys.WHEELS, self.robot.timeout)
+
+    async def encoders(self) -> tuple[int, int] | None:
         """Counts since the last /robot/hw/reset, wrapped to int16 as the firmware's."""
-        counts = self.robot.encoders
+        counts = await self.counts()
         if counts is None:
             return None
-        return (params.to_int16(counts.left - self.encoder_zero[0]),
-                params.to_int16(counts.right - self.encoder_zero[1]))
+        return (params.to_int16(counts.ticks_left - self.encoder_zero[0]),
+                params.to_int16(counts.ticks_right - self.encoder_zero[1]))
 
-    def state(self) -> web.Response:
+    async def get_dip(self) -> int | None:
+        """The DIP switch (hwbridge sends it once a second), or None if none came within the bus timeout."""
+        dip = await self.follows.get(keys.DIP, self.robot.timeout)
+        return None if dip is None else dip.value
+
+    async def state(self) -> web.Response:
         """The state JSON of §5.5, in the old pose convention (y right, theta clockwise)."""
-        left, right = self.encoders() or (None, None)  # null before hwbridge's first counts
-        pose = self.robot.pose
+        self.follows.follow(keys.WHEELS, keys.ODOM_POSE)
+        left, right = await self.encoders() or (None, None)  # null before hwbridge's first counts
+        pose = await self.follows.get(keys.ODOM_POSE, self.robot.timeout)
         body = {
             "encoder": {"left": left, "right": right},
             # Before the first pose the old server had integer zeros; so do we.
@@ -225,22 +236,46 @@ class Api:
     async def set_velocity(self, request: web.Request) -> web.Response:
         left, right = params.speeds(request.query, self.max_demand)
         duration, accel = params.timing(request.query, self.max_time)
+        self.follows.follow(keys.WHEELS, keys.ODOM_POSE)  # the answer's state: subscribed meanwhile
         if duration is None:
             await self.drive(left, right)
         else:
             # One cmd/motion query: hwbridge ramps, holds and stops, and answers when done.
             self.demand = [0.0, 0.0]
-            await self.robot.set_velocity(left * self.unit, right * self.unit, duration, accel)
-        return self.state()
+            await self.robot.set_velocity(left * self.unit, right * self.unit,
+                                          self.timed_duration(left, right, duration, accel), accel)
+        return await self.state()
+
+    def timed_duration(self, left: float, right: float, duration: float, accel: float) -> float:
+        """How long hwbridge holds a timed motion so that it covers V·T (docs/webapi.md, timed
+        motion; measured by bench/timed_motion.py).
+
+        hwbridge changes a wheel's speed at most ``hwbridge.max_accel`` = a (2 m/s²); the old
+        server's steps were instant. A speed V set at once (no ``accel=``) thus takes V/a to
+        reach and covers V²/2a less: 4 % of V·T at 40 units for 1 s, 12 % at 90. A ramp of A
+        seconds steeper than a (V/A > a) is followed late on the way up and cut by the stop at
+        its end on the way down: (V - aA)²/2a less in all (V²/2a for A = 0; nothing for a ramp
+        gentler than a). Holding the speed that much longer gives it back. V is the faster
+        wheel's speed as hwbridge limits it (`max_wheel_speed`). An unramped motion then covers
+        V·`STOP_LEAD_S` more (the wheels coast on after the stop), which comes off too.
+        """
+        hw = self.robot.config.hwbridge
+        speed = min(max(abs(left), abs(right)) * self.unit, hw.max_wheel_speed)
+        if speed == 0:
+            return duration
+        behind = max(0.0, speed - hw.max_accel * accel) ** 2 / (2 * hw.max_accel)  # m
+        lead = STOP_LEAD_S if accel == 0 else 0.0
+        return max(duration / 2, duration + behind / speed - lead)
 
     async def stop(self, request: web.Request) -> web.Response:
         """Answers once hwbridge has confirmed the stop: the board runs zero duty."""
+        self.follows.follow(keys.WHEELS, keys.ODOM_POSE)
         self.demand = [0.0, 0.0]
         await self.robot.stop()
-        return self.state()
+        return await self.state()
 
     async def get_encoder(self, request: web.Request) -> web.Response:
-        enc = self.encoders()
+        enc = await self.encoders()
         if enc is None:
             raise NotReachable(f"no encoder counts yet on {self.node.key(keys.WHEELS)}")
         return text(f"{enc[0]},{enc[1]}")
@@ -248,9 +283,9 @@ class Api:
     async def hw_reset(self, request: web.Request) -> web.Response:
         # The old MULTI_CLEAR_DATA stopped the motors and zeroed the counters.
         await self.stop(request)
-        counts = self.robot.encoders
+        counts = await self.counts()
         if counts is not None:
-            self.encoder_zero = (counts.left, counts.right)
+            self.encoder_zero = (counts.ticks_left, counts.ticks_right)
         return text()
 
     async def pose_reset(self, request: web.Request) -> web.Response:
@@ -261,7 +296,7 @@ class Api:
 
     async def motor_encoder(self, request: web.Request) -> web.Response:
         side = params.integer(request.query, "id", "Bad motor id", 0, 1)
-        enc = self.encoders()
+        enc = await self.encoders()
         if enc is None:
             raise NotReachable(f"no encoder counts yet on {self.node.key(keys.WHEELS)}")
         return text(enc[side])
@@ -277,22 +312,26 @@ class Api:
 
     # ------------------------------------------------------------------ battery
 
+    async def battery(self) -> m.BatteryReading:
+        reading = await self.follows.get(keys.HW_BATTERY, self.robot.timeout)
+        if reading is None:
+            raise NotReachable(f"nothing on {self.node.key(keys.HW_BATTERY)} within {self.robot.timeout} s "
+                               "(is the service running?)")
+        return reading
+
     async def voltage(self, request: web.Request) -> web.Response:
-        await self.robot.ready(keys.HW_BATTERY.name)
-        assert self.robot.battery is not None
-        return text(float(round(self.robot.battery.voltage * 1000, 3)))  # mV, as str(float)
+        return text(float(round((await self.battery()).voltage * 1000, 3)))  # mV, as str(float)
 
     async def current(self, request: web.Request) -> web.Response:
-        await self.robot.ready(keys.HW_BATTERY.name)
-        assert self.robot.battery is not None
-        return text(float(round(self.robot.battery.current * 1000, 3)))  # mA
+        return text(float(round((await self.battery()).current * 1000, 3)))  # mA
 
     # ------------------------------------------------------------------ HAT
 
     async def dip_get(self, request: web.Request) -> web.Response:
-        if self.dip is None:
+        dip = await self.get_dip()
+        if dip is None:
             raise NotReachable(f"no DIP switch reading yet on {self.node.key(keys.DIP)}")
-        return text(self.dip)
+        return text(dip)
 
     async def button_get(self, request: web.Request) -> web.Response:
         count, self.s4_presses = self.s4_presses, 0  # read resets, as HAT_GET_BUTTON did
@@ -329,32 +368,6 @@ class Api:
         self._leds.put(m.Led(led=led, on=True, pulse=ms / 1000))
         return text()
 
-    # ------------------------------------------------------------------ camera
-
-    async def camera(self, request: web.Request) -> web.StreamResponse:
-        """MJPEG: one ``--frame`` part per new ``camera/image``, until the client leaves."""
-        response = web.StreamResponse(headers={
-            "Content-Type": f"multipart/x-mixed-replace; boundary={BOUNDARY}"})
-        await response.prepare(request)
-        task = asyncio.current_task()
-        assert task is not None
-        self.streams.add(task)
-        try:
-            fresh = False  # the first part is the latest frame, so a viewer starts at once
-            while True:
-                try:
-                    image = await self.robot.image_jpeg(fresh=fresh)
-                except NotReachable:
-                    continue  # no camera (yet): keep the stream open, as the old server did
-                fresh = True
-                await response.write(b"--" + BOUNDARY.encode() + b"\r\nContent-Type: image/jpeg\r\n\r\n"
-                                     + image.data + b"\r\n")
-        except (ConnectionResetError, asyncio.CancelledError):
-            pass  # the viewer left, or the service is stopping
-        finally:
-            self.streams.discard(task)
-        return response
-
     def commands(self) -> dict[str, Handler]:
         """Routes that change something on the robot (or, for the button, reset a count):
         only the robot's owner may call them when the robot has access control (`auth`)."""
@@ -380,7 +393,9 @@ class Api:
             "/battery/get/voltage": self.voltage,
             "/battery/get/current": self.current,
             "/hat/dip/get": self.dip_get,
-            "/camera/get": self.camera,
+            "/camera/get": self.camera.get,  # the MJPEG stream, or one JPEG ([webapi] camera_get)
+            "/camera/frame": self.camera.frame,  # one JPEG, always
+            "/camera/info": self.camera.info,  # the intrinsics of those JPEGs
         }
 
     def app(self) -> web.Application:
@@ -401,8 +416,8 @@ class Api:
         return app
 
     async def _end_streams(self, app: web.Application) -> None:
-        for task in list(self.streams):
-            task.cancel()
+        self.camera.close()
+        self.follows.close()
         await self.bridge.close()
         for caller in self._callers.values():
             caller.hub.close()

@@ -1,0 +1,68 @@
+"""The frames HTTP clients get: JPEGs of ``camera.image_width`` x ``image_height``, and their intrinsics.
+
+* `Frames` encodes the latest frame at that size once, however many ask for it
+  (``camera/image`` a few times a second, ``camera/frame`` queries, ``camera/frames``).
+* ``camera/frames`` carries every captured frame, but only while something subscribes to it
+  (Zenoh's matching status): the web API subscribes while an HTTP client watches
+  ``/camera/get``, so an unwatched camera spends nothing on it.
+* `camera_info` is the camera's calibration (made at the capture size) scaled to that size.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import cv2
+import numpy as np
+
+from icefloe.config import Camera
+from icefloe.schemas import messages as m
+
+from .detection import BadFrame
+from .geometry import Intrinsics
+
+Frame = tuple[int, np.ndarray]
+"""(capture stamp, ns since the epoch; the BGR frame at the capture size)."""
+
+
+def jpeg(image: np.ndarray, quality: int) -> bytes:
+    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise BadFrame("JPEG encoding failed")
+    return data.tobytes()
+
+
+class Frames:
+    """The latest frame as the small JPEG, encoded once: thread-safe (the capture thread and
+    the event loop's workers both ask)."""
+
+    def __init__(self, camera: Camera) -> None:
+        self.width, self.height, self.quality = camera.image_width, camera.image_height, camera.jpeg_quality
+        self._lock = threading.Lock()
+        self._frame: Frame | None = None
+        self._image: m.Image | None = None
+
+    def of(self, frame: Frame) -> m.Image:
+        """``frame`` resized and encoded; the same object again for the same frame."""
+        with self._lock:
+            if frame is self._frame and self._image is not None:
+                return self._image
+        stamp, image = frame
+        small = cv2.resize(image, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        encoded = m.Image(stamp=stamp, width=self.width, height=self.height, data=jpeg(small, self.quality))
+        with self._lock:
+            self._frame, self._image = frame, encoded
+        return encoded
+
+
+def camera_info(camera: Camera, intrinsics: Intrinsics) -> m.CameraInfo:
+    """``camera/info``: ``intrinsics`` (at the capture size) for the ``image_width`` x ``image_height`` frames."""
+    small = intrinsics.scaled(camera.image_width, camera.image_height)
+    k = small.camera_matrix
+    return m.CameraInfo(
+        width=small.width, height=small.height,
+        fx=float(k[0, 0]), fy=float(k[1, 1]), cx=float(k[0, 2]), cy=float(k[1, 2]),
+        camera_matrix=[float(v) for v in k.ravel()], dist_coeffs=[float(v) for v in small.dist_coeffs.ravel()],
+        capture_width=intrinsics.width, capture_height=intrinsics.height,
+        source=camera.calibration or "nominal",
+    )
