@@ -9,7 +9,8 @@ import pytest
 
 from icefloe.schemas import messages as m
 from icefloe.services.viz.decimate import Decimator
-from icefloe.services.viz.logging_rr import covariance_ellipse, ray_ends, unpack_oled
+from icefloe.services.viz.logging_rr import covariance_ellipse, obstacle_outlines, ray_ends, unpack_oled
+from icefloe.worldmap import Box, Wall
 
 
 def test_decimator_keeps_one_in_five_of_100_hz_at_20_hz_and_restarts_when_time_goes_back():
@@ -39,3 +40,11 @@ def test_oled_unpacks_msb_first_and_rejects_short_frames():
     assert image[0, 0] == 255 and image[0, 1] == 0 and image[1, 15] == 255 and image.sum() == 2 * 255
     with pytest.raises(ValueError):
         unpack_oled(128, 32, bytes(10))
+
+
+def test_obstacle_outline_is_the_rotated_closed_rectangle() -> None:
+    (box,) = obstacle_outlines([Box(x=1.0, y=2.0, length=0.4, width=0.2, yaw=math.pi / 2).rectangle()])
+    assert box.shape == (5, 2) and np.allclose(box[0], box[-1])
+    assert np.allclose(sorted(map(tuple, box[:4].round(6))), [(0.9, 1.8), (0.9, 2.2), (1.1, 1.8), (1.1, 2.2)])
+    (wall,) = obstacle_outlines([Wall(x0=0.0, y0=0.0, x1=2.0, y1=0.0, thickness=0.1).rectangle()])
+    assert np.allclose(wall.min(axis=0), [0.0, -0.05]) and np.allclose(wall.max(axis=0), [2.0, 0.05])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 
 from conftest import wait_for
 
@@ -115,3 +116,57 @@ async def test_records_the_simulated_robot_driving(robot, tmp_path):
         origins = [row[0] for row in data[f"{root}/{entity}"]["Arrows2D:origins"] if row]
         assert math.dist(origins[0], origins[-1]) > 0.2, entity
     assert max(v[0] for v in data[f"{root}/wheels/left/measured"]["Scalars:scalars"] if v) > 0.05
+
+
+async def test_records_the_obstacles_and_the_path_the_follower_drives(robot, tmp_path):
+    """The world's walls and boxes once, ``nav/path`` as a line strip cleared by an empty path, the
+    follower's state as a log line; a hostile path (too long, NaN) is one dropped line, viz keeps going."""
+    import msgspec
+
+    from icefloe.schemas import messages as m
+    from icefloe.services.viz.logging_rr import obstacle_outlines
+    from icefloe.services.viz.readback import read_static
+
+    out = tmp_path / "nav.rrd"
+    viz = robot.start_module("icefloe.services.viz", "--save", str(out))
+    route = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)]
+    async with robot.node("tester") as node:
+        await wait_for(lambda: "showing robot" in viz.output, timeout=60)
+        path, status = node.publisher(keys.NAV_PATH), node.publisher(keys.NAV_STATUS)
+        await wait_for(lambda: path.matched and status.matched, timeout=20)  # viz has subscribed
+        path.put(m.NavPath(points=route, stamp=time.time_ns(), seq=1))
+        for state in ("following", "following", "arrived"):
+            status.put(m.FollowStatus(stamp=time.time_ns(), state=state, seq=1, points=3))
+            await asyncio.sleep(0.2)
+        raw = node.session.declare_publisher(node.key(keys.NAV_PATH))
+        # One at a time: the viewer keeps only the newest sample, so a second one may replace the first.
+        for payload, said in (({"points": [[0.0, 0.0]] * 100_000}, "100000 points"),  # the schema allows 20 000
+                              ({"points": [[0.0, float("nan")]]}, "not finite")):
+            raw.put(msgspec.msgpack.encode(payload))
+            try:
+                await wait_for(lambda said=said: said in viz.output, timeout=20)
+            except AssertionError as exc:
+                raise AssertionError(viz.output) from exc
+        for _ in range(50):  # a flood of them: a few lines, not one each
+            raw.put(msgspec.msgpack.encode({"points": [[0.0, float("nan")]]}))
+        raw.undeclare()
+        await asyncio.sleep(0.5)
+        path.put(m.NavPath(points=[], stamp=time.time_ns(), seq=2))  # clears the drawn path
+        await asyncio.sleep(1.0)
+    assert viz.alive(), viz.output
+    assert viz.stop() == 0, viz.output
+    assert viz.output.count("nav/path") <= 8, viz.output  # rate-limited: a few lines, not one per path
+
+    root = f"/robots/{robot.name}"
+    strips = read_rrd(out)[f"{root}/map/path"]["LineStrips2D:strips"]
+    assert [[list(p) for p in s] for s in strips[0]] == [[list(p) for p in route]]
+    assert strips[-1] in ([], None) and len(strips) == 2  # the hostile paths drew nothing
+    texts = read_rrd(out)[f"{root}/log/nav"]["TextLog:text"]
+    assert [t[0].split(" ")[0] for t in texts] == ["following", "arrived"]  # only changes are logged
+    world = load_world(robot.config.localizer.world)
+    assert world.obstacles, "the test world has no obstacles"
+    drawn = read_static(out)[f"{root}/map/obstacles"]["LineStrips2D:strips"][0]
+    want = obstacle_outlines([o.rectangle() for o in world.obstacles])
+    assert len(drawn) == len(want)
+    for got, expected in zip(drawn, want, strict=True):
+        assert all(math.dist(a, b) < 1e-5 for a, b in zip(got, expected, strict=True))

@@ -31,7 +31,7 @@ from icefloe.errors import ConfigError
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas.keys import Topic
-from icefloe.worldmap import load_world
+from icefloe.worldmap import Rectangle, load_world
 
 from .blueprint import blueprint
 from .decimate import Decimator
@@ -65,6 +65,8 @@ STREAMS = (
     Stream(keys.SLAM_MAP, RobotLogger.slam_map, rate_hz=2),
     Stream(keys.MAP_LANDMARKS, RobotLogger.reference_map, rate_hz=2),
     Stream(keys.LANDMARKS, RobotLogger.landmarks, rate_hz=10),
+    Stream(keys.NAV_PATH, RobotLogger.path),  # a few per run
+    Stream(keys.NAV_STATUS, RobotLogger.nav_status),  # logged only when the state changes
     Stream(keys.IMAGE, RobotLogger.image, rate_hz=10),
     Stream(keys.BATTERY, RobotLogger.battery),
     Stream(keys.HW_BATTERY, RobotLogger.battery_raw, rate_hz=5),
@@ -82,6 +84,15 @@ def world_markers(config: RobotConfig, log: logging.Logger) -> list[tuple[int, f
         log.warning("the map shows no landmarks: %s", exc)
         return []
     return [(mk.id, mk.x, mk.y, mk.size, mk.yaw) for mk in world.markers]
+
+
+def world_obstacles(config: RobotConfig) -> list[Rectangle]:
+    """Footprints of the config's world file's obstacles; [] if it cannot be read (`world_markers` says why)."""
+    try:
+        world = load_world(config.localizer.world)
+    except ConfigError:
+        return []
+    return [o.rectangle() for o in world.obstacles]
 
 
 def open_recording(options: VizOptions, robots: list[str], run_dir: Path) -> tuple[rr.RecordingStream, Viewer | None]:
@@ -114,6 +125,7 @@ class Shown:
         self.loggers: dict[str, RobotLogger] = {}
         self._tasks = tasks
         self._markers = world_markers(node.config, node.log)
+        self._obstacles = world_obstacles(node.config)
 
     def add(self, robot: str) -> None:
         """Start showing ``robot`` (nothing happens if it is shown already)."""
@@ -122,6 +134,7 @@ class Shown:
         logger = RobotLogger(self.rec, robot, capture_width=self.node.config.camera.width)
         logger.setup()
         logger.landmark_map(self._markers)
+        logger.obstacles(self._obstacles)
         self.loggers[robot] = logger
         for stream in STREAMS:
             self._tasks.create_task(self._follow(logger, stream))

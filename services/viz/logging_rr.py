@@ -15,6 +15,9 @@ map/reference                      the map maker's landmarks, 95 % ellipses    m
 map/slam, map/slam/covariance      SLAM's pose arrow and its 95 % ellipse      slam/pose
 map/slam/landmarks                 SLAM's landmarks, 95 % ellipses             slam/map
 map/rays                           a line to each marker seen in this frame    camera/landmarks
+map/obstacles                      the world file's walls and boxes (static)   localizer.world
+map/path                           the path the follower drives ([] clears)    nav/path
+log/nav                            the follower's state, on each change        nav/status
 camera/image, camera/image/markers the JPEG and the detected marker outlines   camera/image, .../landmarks
 oled                               the little screen, one pixel per pixel      oled/frame
 wheels/{left,right}/{target,measured}  commanded vs measured rim speed, m/s    hw/wheels
@@ -43,6 +46,7 @@ import numpy as np
 import rerun as rr
 
 from icefloe.schemas import messages as m
+from icefloe.worldmap import Rectangle
 
 from .decimate import Decimator
 
@@ -70,6 +74,8 @@ MARKER_COLOR = (230, 60, 60)
 RAY_COLOR = (250, 200, 40)
 SLAM_COLOR = (0, 190, 190)
 REFERENCE_MAP_COLOR = (255, 140, 0)
+OBSTACLE_COLOR = (90, 90, 90)
+PATH_COLOR = (255, 60, 200)
 TEXT_LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "error": "ERROR", "critical": "CRITICAL"}
 
 
@@ -142,6 +148,17 @@ def marker_faces(markers: Sequence[tuple[float, float, float, float]]) -> list[n
     return faces
 
 
+def obstacle_outlines(rects: Sequence[Rectangle]) -> list[np.ndarray]:
+    """Closed top-down outlines (5 points) of obstacle footprints (`icefloe.worldmap.Rectangle`)."""
+    outlines = []
+    for cx, cy, half_length, half_width, yaw in rects:
+        c, s = math.cos(yaw), math.sin(yaw)
+        corners = [(half_length, half_width), (-half_length, half_width), (-half_length, -half_width),
+                   (half_length, -half_width), (half_length, half_width)]
+        outlines.append(np.array([(cx + c * u - s * v, cy + s * u + c * v) for u, v in corners]))
+    return outlines
+
+
 class Trail:
     """The recent path of one pose source, thinned by distance."""
 
@@ -174,6 +191,7 @@ class RobotLogger:
         self._trails = {"odom": Trail(), "loc": Trail(), "truth": Trail(), "extloc": Trail(), "slam": Trail()}
         self._trail_rate = {name: Decimator(TRAIL_RATE_HZ) for name in self._trails}
         self._ray_pose: dict[str, tuple[float, float, float]] = {}
+        self._nav_state: tuple[str, int, str] | None = None
 
     def _at(self, stamp: int) -> None:
         self.rec.set_time(TIMELINE, timestamp=np.datetime64(stamp, "ns"))
@@ -204,6 +222,29 @@ class RobotLogger:
                   static=True)
         faces = marker_faces([(x, y, size, yaw) for _, x, y, size, yaw in markers])
         self._log("map/landmarks/faces", rr.LineStrips2D(faces, colors=MARKER_COLOR, radii=0.01), static=True)
+
+    def obstacles(self, rects: Sequence[Rectangle]) -> None:
+        """The world file's obstacles (footprints from `Wall.rectangle`, `Box.rectangle`), static."""
+        if rects:
+            self._log("map/obstacles", rr.LineStrips2D(obstacle_outlines(rects), colors=OBSTACLE_COLOR, radii=0.008),
+                      static=True)
+
+    def path(self, msg: m.NavPath) -> None:
+        """The path the follower is driving (``nav/path``); an empty one clears it. The schema has
+        already refused a path that is too long or not finite, so this is bounded."""
+        self._at(msg.stamp or time.time_ns())  # a student's path may carry no stamp
+        self._log("map/path", rr.LineStrips2D([msg.points] if msg.points else [], colors=PATH_COLOR, radii=0.006))
+
+    def nav_status(self, msg: m.FollowStatus) -> None:
+        """The follower's state as a log line, when it changes (it is published a few times a second)."""
+        state = (msg.state, msg.seq, msg.reason)
+        if state == self._nav_state:
+            return
+        self._nav_state = state
+        self._at(msg.stamp)
+        why = f": {msg.reason}" if msg.reason else ""
+        self._log("log/nav", rr.TextLog(f"{msg.state} path {msg.seq} ({msg.points} points){why}",
+                                           level="WARN" if msg.state == "stopped" else "INFO"))
 
     def _pose(self, name: str, stamp: int, x: float, y: float, theta: float, color: tuple[int, int, int]) -> None:
         self._at(stamp)

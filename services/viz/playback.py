@@ -22,7 +22,7 @@ from icefloe.errors import BadRecording
 from icefloe.logs import LimitedLog
 from icefloe.schemas import keys
 
-from .app import STREAMS, open_recording, world_markers
+from .app import STREAMS, open_recording, world_markers, world_obstacles
 from .logging_rr import RobotLogger
 from .options import VizOptions
 
@@ -42,12 +42,13 @@ def show(bag: Bag, config: RobotConfig, options: VizOptions) -> int:
         which = f" of robot {options.robot!r}" if options.robot else ""
         raise BadRecording(f"{bag.files[0].path}: no icefloe keys{which} to show")
     rec, _viewer = open_recording(options, robots, config.runtime_dir)
-    markers = world_markers(config, log)
+    markers, obstacles = world_markers(config, log), world_obstacles(config)
     loggers: dict[str, RobotLogger] = {}
     for robot in robots:
         logger = loggers[robot] = RobotLogger(rec, robot, capture_width=config.camera.width)
         logger.setup()
         logger.landmark_map(markers)
+        logger.obstacles(obstacles)
     streams = {s.topic.name: s for s in STREAMS}
     warn = LimitedLog(log)
     shown = 0
