@@ -98,8 +98,10 @@ async def test_record_the_driven_robot_and_replay_it_into_fresh_services(make_ro
     async with robot.node("tester") as node:
         await wait_for(lambda: "recording" in recorder.output, timeout=30)
         await asyncio.sleep(0.5)  # the recorder's subscription reaches the router
-        spy = node.subscribe_raw(f"icefloe/{robot.name}/**", maxsize=200_000)
-        spying = asyncio.create_task(collect(spy, seen))
+        # What the recorder follows with no keys: every key of the robot but camera/frames (whose
+        # follower would switch the camera's full-rate stream on: docs/record-replay.md).
+        spies = [node.subscribe_raw(expr, maxsize=200_000) for expr in keys.all_but_frames(robot.name)]
+        spying = [asyncio.create_task(collect(spy, seen)) for spy in spies]
         services = [robot.start(s) for s in ("sim", "hwbridge", "odometry", "localizer")]
         loc: list[m.PoseEstimate] = []
         loc_task = asyncio.create_task(collect(node.subscribe(keys.LOC_POSE, latest=False), loc))
@@ -113,7 +115,7 @@ async def test_record_the_driven_robot_and_replay_it_into_fresh_services(make_ro
         window = (window[0], time.time_ns())
         assert recorder.stop(signal.SIGINT) == 0, recorder.output
         await asyncio.sleep(0.5)  # the spy has seen everything the recorder saw, and more
-        for task in (spying, loc_task, frame_task):
+        for task in (*spying, loc_task, frame_task):
             task.cancel()
     for proc in services:
         assert proc.alive(), proc.output
