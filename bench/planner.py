@@ -94,8 +94,8 @@ def planning(repeat: int) -> None:
           f"median {statistics.median(bfs) * 1e3:.0f} ms")
 
 
-def distance_to_path(path: list[tuple[float, float]], x: float, y: float) -> float:
-    return min(project(a, b, (x, y))[1] for a, b in itertools.pairwise(path))
+def distance_to_path(path: list[m.Waypoint], x: float, y: float) -> float:
+    return min(project((a.x, a.y), (b.x, b.y), (x, y))[1] for a, b in itertools.pairwise(path))
 
 
 async def drive(config: config_mod.RobotConfig, path: Path) -> None:

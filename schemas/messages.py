@@ -377,12 +377,22 @@ MAX_PATH_POINTS = 20_000
 """Most points in a path (`NavPath`, `Plan`): 400 m at 2 cm."""
 
 
-def _check_points(points: list[tuple[float, float]], field: str) -> None:
+class Waypoint(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One point of a path (`NavPath`, `Plan`), world frame. An object, not an ``[x, y]`` pair:
+    Foxglove's JSON Schema reader takes arrays only of primitives or objects."""
+
+    x: float
+    """m, world frame."""
+    y: float
+    """m, world frame."""
+
+
+def _check_points(points: list[Waypoint], field: str) -> None:
     if len(points) > MAX_PATH_POINTS:
         raise ValueError(f"field `{field}` has {len(points)} points, more than {MAX_PATH_POINTS}")
-    for i, (x, y) in enumerate(points):
-        if not (math.isfinite(x) and math.isfinite(y)):
-            raise ValueError(f"field `{field}`: point {i} is not finite: ({x}, {y})")
+    for i, p in enumerate(points):
+        if not (math.isfinite(p.x) and math.isfinite(p.y)):
+            raise ValueError(f"field `{field}`: point {i} is not finite: ({p.x}, {p.y})")
 
 
 class GridRequest(Message):
@@ -441,8 +451,8 @@ class Plan(Message):
     """True: ``path`` goes from start to goal through free cells."""
     reason: str = ""
     """Why there is no path (``ok`` false): e.g. the goal is inside an obstacle, or walled off."""
-    path: list[tuple[float, float]] = []
-    """Points (x, y) from start to goal, world frame, m."""
+    path: list[Waypoint] = []
+    """Points from start to goal, world frame, m."""
     length: float = 0.0
     """Length of the path, m."""
     expanded: int = 0
@@ -460,8 +470,8 @@ class NavPath(Command):
     stop on ``cmd/stop``, ends the one being followed. Numbered like every command (`Command`):
     a path issued before a stop is not driven."""
 
-    points: list[tuple[float, float]]
-    """Points (x, y) to drive through, in order, world frame (the frame of ``loc/pose``), m."""
+    points: list[Waypoint]
+    """Points to drive through, in order, world frame (the frame of ``loc/pose``), m."""
     speed: Annotated[float, msgspec.Meta(ge=0)] = 0.0
     """Forward speed, m/s (0 = the follower's configured speed)."""
 

@@ -262,14 +262,14 @@ def test_progress_never_goes_back_along_a_path_that_passes_near_itself() -> None
 
 
 def test_a_path_with_nan_or_too_many_points_is_refused_naming_the_point() -> None:
-    nan = msgspec.msgpack.encode({"points": [[0.0, 0.0], [float("nan"), 1.0]]})
+    nan = msgspec.msgpack.encode({"points": [{"x": 0.0, "y": 0.0}, {"x": float("nan"), "y": 1.0}]})
     with pytest.raises(BadPayload, match=r"point 1 is not finite"):
         codec.decode(nan, "application/msgpack", m.NavPath, "icefloe/sim/nav/path")
-    many = msgspec.msgpack.encode({"points": [[0.0, 0.0]] * (m.MAX_PATH_POINTS + 1)})
+    many = msgspec.msgpack.encode({"points": [{"x": 0.0, "y": 0.0}] * (m.MAX_PATH_POINTS + 1)})
     with pytest.raises(BadPayload, match="more than"):
         codec.decode(many, "application/msgpack", m.NavPath, "icefloe/sim/nav/path")
     with pytest.raises(BadPayload):
-        codec.decode(b'{"points": [[0, 0, 0]]}', "application/json", m.NavPath, "icefloe/sim/nav/path")
+        codec.decode(b'{"points": [{"x": 0, "y": 0, "z": 0}]}', "application/json", m.NavPath, "icefloe/sim/nav/path")
     with pytest.raises(BadPayload):
         codec.decode(b'{"inflation": 5}', "application/json", m.GridRequest, "icefloe/sim/map/grid")
 

@@ -29,8 +29,8 @@ pytestmark = pytest.mark.slow
 FOLLOWER = '[follower]\npose = "sim/truth"\n'
 
 
-def distance_to_path(path: list[tuple[float, float]], x: float, y: float) -> float:
-    return min(project(a, b, (x, y))[1] for a, b in itertools.pairwise(path))
+def distance_to_path(path: list[m.Waypoint], x: float, y: float) -> float:
+    return min(project((a.x, a.y), (b.x, b.y), (x, y))[1] for a, b in itertools.pairwise(path))
 
 
 async def ask(node, topic, request, timeout: float = 30.0):
@@ -63,7 +63,8 @@ async def test_plan_then_follow_drives_the_path_and_stops_at_its_end(make_robot)
         goal = (-1.5, -1.5)
         plan = await ask(node, keys.PLAN, m.PlanRequest(start_x=0.0, start_y=0.0, goal_x=goal[0], goal_y=goal[1]))
         assert plan.ok, plan.reason
-        assert plan.path[0] == (0.0, 0.0) and plan.path[-1] == goal and plan.length > math.dist((0, 0), goal)
+        assert plan.path[0] == m.Waypoint(0.0, 0.0) and plan.path[-1] == m.Waypoint(*goal)
+        assert plan.length > math.dist((0, 0), goal)
 
         async def watch(topic, into) -> None:
             async for msg in node.subscribe(topic, latest=False):
@@ -117,14 +118,14 @@ async def test_hostile_plans_and_paths_and_a_stop_that_wins(make_robot) -> None:
 
         # a path with NaN in it (MessagePack carries NaN; JSON cannot): dropped, named, nothing moves
         await wait_for(lambda: truth and statuses, timeout=30)
-        node.session.put(node.key(keys.NAV_PATH), msgspec.msgpack.encode({"points": [[0.0, 0.0], [math.nan, 1.0]]}),
-                         encoding="application/msgpack")
+        nan = {"points": [{"x": 0.0, "y": 0.0}, {"x": math.nan, "y": 1.0}]}
+        node.session.put(node.key(keys.NAV_PATH), msgspec.msgpack.encode(nan), encoding="application/msgpack")
         await wait_for(lambda: "point 1 is not finite" in procs["follower"].output, timeout=20)
         assert statuses[-1].state == "idle" and math.hypot(truth[-1].x, truth[-1].y) < 1e-3
 
         # a stop while following: the wheels stop, the follower gives the path up, nothing restarts them
         path = node.publisher(keys.NAV_PATH)
-        path.put(node.command(m.NavPath, points=[(0.0, 0.0), (1.0, 0.0)]))
+        path.put(node.command(m.NavPath, points=[m.Waypoint(0.0, 0.0), m.Waypoint(1.0, 0.0)]))
         await wait_for(lambda: truth[-1].x > 0.1, timeout=30)
         node.publisher(keys.STOP).put(node.command(m.Stop))
         await wait_for(lambda: statuses[-1].state == "stopped", timeout=10)
@@ -135,7 +136,7 @@ async def test_hostile_plans_and_paths_and_a_stop_that_wins(make_robot) -> None:
         assert truth[-1].x == stopped_at < 0.5
 
         # a path issued before a stop, arriving after it: refused, the robot stays
-        old = node.command(m.NavPath, points=[(stopped_at, 0.0), (1.0, 0.0)])
+        old = node.command(m.NavPath, points=[m.Waypoint(stopped_at, 0.0), m.Waypoint(1.0, 0.0)])
         node.publisher(keys.STOP).put(node.command(m.Stop))
         await asyncio.sleep(0.2)
         path.put(old)
@@ -156,7 +157,7 @@ from icefloe.schemas import keys, messages as m
 
 async def main(config):
     async def answer(r: m.PlanRequest) -> m.Plan:
-        path = [(r.start_x, r.start_y), (r.goal_x, r.goal_y)]
+        path = [m.Waypoint(r.start_x, r.start_y), m.Waypoint(r.goal_x, r.goal_y)]
         return m.Plan(stamp=time.time_ns(), ok=True, reason="mine", path=path)
     async with Node("my_planner", config) as node:
         node.queryable(keys.PLAN, answer)
@@ -192,7 +193,7 @@ async def test_a_students_planner_replaces_the_reference_one_by_config(tmp_path)
 
         async with Node("tester", config) as node:
             plan = await ask(node, keys.PLAN, m.PlanRequest(start_x=0, start_y=0, goal_x=0.4, goal_y=0.3), timeout=90)
-            assert plan.reason == "mine" and plan.path == [(0.0, 0.0), (0.4, 0.3)]
+            assert plan.reason == "mine" and plan.path == [m.Waypoint(0.0, 0.0), m.Waypoint(0.4, 0.3)]
             alive = await node.alive()
             assert not any(a.endswith("/planner") for a in alive) and any(a.endswith("/my_planner") for a in alive)
 

@@ -129,7 +129,7 @@ async def test_records_the_obstacles_and_the_path_the_follower_drives(robot, tmp
 
     out = tmp_path / "nav.rrd"
     viz = robot.start_module("icefloe.services.viz", "--save", str(out))
-    route = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)]
+    route = [m.Waypoint(0.0, 0.0), m.Waypoint(1.0, 0.0), m.Waypoint(1.0, 1.0)]
     async with robot.node("tester") as node:
         await wait_for(lambda: "showing robot" in viz.output, timeout=60)
         path, status = node.publisher(keys.NAV_PATH), node.publisher(keys.NAV_STATUS)
@@ -140,15 +140,16 @@ async def test_records_the_obstacles_and_the_path_the_follower_drives(robot, tmp
             await asyncio.sleep(0.2)
         raw = node.session.declare_publisher(node.key(keys.NAV_PATH))
         # One at a time: the viewer keeps only the newest sample, so a second one may replace the first.
-        for payload, said in (({"points": [[0.0, 0.0]] * 100_000}, "100000 points"),  # the schema allows 20 000
-                              ({"points": [[0.0, float("nan")]]}, "not finite")):
+        origin = {"x": 0.0, "y": 0.0}
+        for payload, said in (({"points": [origin] * 100_000}, "100000 points"),  # the schema allows 20 000
+                              ({"points": [{"x": 0.0, "y": float("nan")}]}, "not finite")):
             raw.put(msgspec.msgpack.encode(payload))
             try:
                 await wait_for(lambda said=said: said in viz.output, timeout=20)
             except AssertionError as exc:
                 raise AssertionError(viz.output) from exc
         for _ in range(50):  # a flood of them: a few lines, not one each
-            raw.put(msgspec.msgpack.encode({"points": [[0.0, float("nan")]]}))
+            raw.put(msgspec.msgpack.encode({"points": [{"x": 0.0, "y": float("nan")}]}))
         raw.undeclare()
         await asyncio.sleep(0.5)
         path.put(m.NavPath(points=[], stamp=time.time_ns(), seq=2))  # clears the drawn path
@@ -159,7 +160,7 @@ async def test_records_the_obstacles_and_the_path_the_follower_drives(robot, tmp
 
     root = f"/robots/{robot.name}"
     strips = read_rrd(out)[f"{root}/map/path"]["LineStrips2D:strips"]
-    assert [[list(p) for p in s] for s in strips[0]] == [[list(p) for p in route]]
+    assert [[list(p) for p in s] for s in strips[0]] == [[[p.x, p.y] for p in route]]
     assert strips[-1] in ([], None) and len(strips) == 2  # the hostile paths drew nothing
     texts = read_rrd(out)[f"{root}/log/nav"]["TextLog:text"]
     assert [t[0].split(" ")[0] for t in texts] == ["following", "arrived"]  # only changes are logged

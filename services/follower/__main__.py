@@ -1,7 +1,7 @@
 """The reference path follower: drives the path on ``nav/path`` with pure pursuit, then stops.
 
     python -m icefloe.services.follower --config deploy/robots/sim.toml
-    icefloe pub nav/path '{"points": [[0, 0], [0.5, 0], [0.5, 0.5]]}'
+    icefloe pub nav/path '{"points": [{"x": 0, "y": 0}, {"x": 0.5, "y": 0}, {"x": 0.5, "y": 0.5}]}'
 
 It steers with `pursuit.py` (the maths, one small module) from the pose on ``follower.pose``
 (``loc/pose`` by default: the world frame the planner plans in), sending numbered commands on
@@ -102,7 +102,7 @@ async def main(config: RobotConfig) -> None:
                 speed = min(path.speed or f.speed, f.max_speed)
                 if now is not None:
                     end("stopped", "a new path", stop=False)
-                now = Following([(float(x), float(y)) for x, y in path.points], path.sender, path.seq,
+                now = Following([(float(p.x), float(p.y)) for p in path.points], path.sender, path.seq,
                                 Params(**{**base.__dict__, "speed": speed}))
                 node.log.info("path from %s #%d: %d points, %.2f m/s", path.sender or "?", path.seq,
                               len(path.points), speed)

@@ -34,8 +34,8 @@ def answer_plan(grid: Grid, request: m.PlanRequest) -> m.Plan:
         points, expanded = plan(grid, start, goal)
     except NoPath as exc:
         return m.Plan(stamp=time.time_ns(), ok=False, reason=f"no path: {exc}", seconds=time.perf_counter() - t0)
-    return m.Plan(stamp=time.time_ns(), ok=True, path=points, length=length(points), expanded=expanded,
-                  seconds=time.perf_counter() - t0)
+    return m.Plan(stamp=time.time_ns(), ok=True, path=[m.Waypoint(x, y) for x, y in points], length=length(points),
+                  expanded=expanded, seconds=time.perf_counter() - t0)
 
 
 async def main(config: RobotConfig) -> None:

@@ -233,7 +233,8 @@ class RobotLogger:
         """The path the follower is driving (``nav/path``); an empty one clears it. The schema has
         already refused a path that is too long or not finite, so this is bounded."""
         self._at(msg.stamp or time.time_ns())  # a student's path may carry no stamp
-        self._log("map/path", rr.LineStrips2D([msg.points] if msg.points else [], colors=PATH_COLOR, radii=0.006))
+        strips = [[(p.x, p.y) for p in msg.points]] if msg.points else []
+        self._log("map/path", rr.LineStrips2D(strips, colors=PATH_COLOR, radii=0.006))
 
     def nav_status(self, msg: m.FollowStatus) -> None:
         """The follower's state as a log line, when it changes (it is published a few times a second)."""
