@@ -46,7 +46,7 @@ class Followed:
     def newest(self) -> Any:
         """The newest sample that decodes (a bad one is dropped with a line; the last good stays)."""
         sample = self._sub.try_recv()
-        if sample is not None:
+        if sample is not None and self._node.own_key(self.key_expr, str(sample.key_expr)):  # not a wildcard put
             try:
                 self.value = codec.decode(sample.payload.to_bytes(), str(sample.encoding), self.topic.type,
                                           self.key_expr)
