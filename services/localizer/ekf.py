@@ -196,19 +196,30 @@ class Ekf:
         nu = np.array([rng - r_hat, wrap_angle(bearing - (math.atan2(ddy, ddx) - self.mu[2]))])
         n = self.noise
         R = np.diag([n.sigma_range**2 + (n.sigma_range_rel * rng) ** 2, n.sigma_bearing**2])
-        S = H @ self.P @ H.T + R
-        S_inv = np.linalg.inv(S)
-        d2 = float(nu @ S_inv @ nu)
-        if d2 > self.gate_chi2:
+        mu, P, d2 = gated_update(self.mu, self.P, H, nu, R, self.gate_chi2)
+        if mu is None:
             self.outliers += 1
             return Result(Outcome.OUTLIER, landmark_id, d2)
-        K = self.P @ H.T @ S_inv
-        self.mu = self.mu + K @ nu
-        self.mu[2] = wrap_angle(self.mu[2])
-        IKH = np.eye(3) - K @ H
-        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
+        self.mu, self.P = mu, P
         self.accepted += 1
         return Result(Outcome.ACCEPTED, landmark_id, d2)
+
+
+def gated_update(mu: np.ndarray, P: np.ndarray, H: np.ndarray, nu: np.ndarray, R: np.ndarray,
+                 gate_chi2: float) -> tuple[np.ndarray | None, np.ndarray | None, float]:
+    """One EKF correction with innovation ``nu`` (measurement Jacobian ``H``, noise ``R``), gated:
+    (mu, P, d2), or (None, None, d2) when the squared Mahalanobis distance d2 exceeds ``gate_chi2``.
+    ``mu[2]`` is the heading (wrapped). Joseph form for P, so it stays symmetric positive definite."""
+    S = H @ P @ H.T + R
+    S_inv = np.linalg.inv(S)
+    d2 = float(nu @ S_inv @ nu)
+    if d2 > gate_chi2:
+        return None, None, d2
+    K = P @ H.T @ S_inv
+    mu = mu + K @ nu
+    mu[2] = wrap_angle(mu[2])
+    IKH = np.eye(len(mu)) - K @ H
+    return mu, IKH @ P @ IKH.T + K @ R @ K.T, d2
 
 
 def pose_from_landmarks(seen: Iterable[tuple[tuple[float, float], float, float]]) -> tuple[float, float, float] | None:

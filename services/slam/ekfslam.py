@@ -46,7 +46,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from ..localizer.ekf import Noise, Outcome, Result
+from ..localizer.ekf import Noise, Outcome, Result, gated_update
 from ..odometry.model import wrap_angle
 
 
@@ -134,17 +134,11 @@ class EkfSlam:
         H[:, k:k + 2] = [[ddx / r_hat, ddy / r_hat], [-ddy / q, ddx / q]]
         nu = np.array([rng - r_hat, wrap_angle(bearing - (math.atan2(ddy, ddx) - th))])
         R = self._noise(rng)
-        S = H @ self.P @ H.T + R
-        S_inv = np.linalg.inv(S)
-        d2 = float(nu @ S_inv @ nu)
-        if d2 > self.gate_chi2:
+        mu, P, d2 = gated_update(self.mu, self.P, H, nu, R, self.gate_chi2)
+        if mu is None:
             self.outliers += 1
             return Result(Outcome.OUTLIER, landmark_id, d2)
-        K = self.P @ H.T @ S_inv
-        self.mu = self.mu + K @ nu
-        self.mu[2] = wrap_angle(self.mu[2])
-        IKH = np.eye(len(self.mu)) - K @ H
-        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
+        self.mu, self.P = mu, P
         self.accepted += 1
         return Result(Outcome.ACCEPTED, landmark_id, d2)
 
