@@ -55,6 +55,20 @@ def pids(text: str) -> set[int]:
     return set(processes_naming(text))
 
 
+def parent(pid: int) -> int:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+def program_pids(text: str) -> set[int]:
+    """The programs themselves: a shell script's own subshells (``$(...)``, ``<(...)``) carry its
+    command line too, but live for milliseconds and have the script as their parent."""
+    found = pids(text)
+    return {pid for pid in found if parent(pid) not in found}
+
+
 def until(predicate, what: str, timeout: float = 60.0):  # type: ignore[no-untyped-def]
     deadline = time.monotonic() + timeout
     while not (value := predicate()):
@@ -97,7 +111,7 @@ def test_up_runs_supervises_and_stops_your_own_programs(tmp_path: Path) -> None:
         services = icefloe("services", "--config", str(cfg))
         assert f"{config.name}/forward" in services.stdout, services.stdout
         # Each program was told its robot, router, credentials and bridge, not the password.
-        first = {name: until(lambda s=script: pids(s), f"{name} running") for name, script in scripts.items()}
+        first = {name: until(lambda s=script: program_pids(s), f"{name} running") for name, script in scripts.items()}
         environ = Path(f"/proc/{min(first['battery_screen'])}/environ").read_bytes().split(b"\0")
         assert f"ICEFLOE_ROBOT={config.name}".encode() in environ
         assert f"ICEFLOE_WEBAPI=http://127.0.0.1:{config.webapi.port}".encode() in environ
@@ -107,7 +121,7 @@ def test_up_runs_supervises_and_stops_your_own_programs(tmp_path: Path) -> None:
             for pid in first[name]:
                 os.kill(pid, signal.SIGKILL)
         for name, script in scripts.items():
-            until(lambda s=script, n=name: pids(s) - first[n], f"{name} restarted")
+            until(lambda s=script, n=name: program_pids(s) - first[n], f"{name} restarted")
         for name in ("odo_check", "forward"):
             wait_alive(cfg, name, timeout=60)
         assert asyncio.run(screen_texts(config, 1))[0].startswith("battery ")
