@@ -600,8 +600,8 @@ def main(argv: list[str] | None = None) -> int:
     up.add_argument("--rev", default="HEAD", help="its commit to clone (default HEAD: committed work only)")
     up.add_argument("--robot", default="penguin1", help="the robot config to install (default penguin1)")
     up.add_argument("--no-install", action="store_true", help="stop after making pi and cloning the repository")
-    sub.add_parser("build", help="make the cached root (if missing)").add_argument(
-        "--rebuild", action="store_true", help="make it again even if it exists")
+    sub.add_parser("build", help="make the cached root and the wheelhouse (if missing)").add_argument(
+        "--rebuild", action="store_true", help="make the root again even if it exists")
     inst = sub.add_parser("install", help="run the install as pi again")
     inst.add_argument("--robot", default="penguin1", help="the robot config (default penguin1)")
     ex = sub.add_parser("exec", help="run a shell command in the box")
@@ -622,6 +622,7 @@ def main(argv: list[str] | None = None) -> int:
         match args.command:
             case "build":
                 build(args.cache, args.arch, args.rebuild)
+                wheelhouse(REPO, args.cache / "wheels")
                 return 0
             case "serve":
                 return Supervisor(state, args.cache, args.name).serve()
