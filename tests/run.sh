@@ -38,7 +38,7 @@ if [ "$box" = 1 ]; then
         status=1
     else
         start=$SECONDS
-        ICEFLOE_BOX=1 .venv/bin/pytest -p no:randomly -p no:cacheprovider tests/test_box.py "$@" || status=$?
+        ICEFLOE_BOX=1 .venv/bin/pytest -p no:randomly -p no:cacheprovider --durations=0 tests/test_box.py "$@" || status=$?
         echo "box: $((SECONDS - start)) s"
     fi
 fi
