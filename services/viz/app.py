@@ -49,6 +49,7 @@ DISCOVERY_INTERVAL_S = 1.0
 GRID_POLL_S = 5.0
 """How often viz asks a robot for its occupancy grid (``map/grid``); it is drawn only when it changed."""
 GRID_TIMEOUT_S = 10.0
+PROBLEM_CHARS = 300
 
 
 @dataclass(frozen=True)
@@ -193,8 +194,8 @@ class Shown:
                 problem = f"{key}: dropped: {str(exc).removeprefix(key + ': ')}"
             except ValueError as exc:  # an OccupancyGrid that cannot be a grid (`grid_cells`)
                 problem = f"{key}: dropped: {exc}"
-            if problem and problem != refused:
-                self.node.limited.warning(f"{logger.robot}/map/grid", "%s", problem)
+            if problem and problem != refused:  # a student's error reply may be long: one line, not a page
+                self.node.limited.warning(f"{logger.robot}/map/grid", "%s", problem[:PROBLEM_CHARS])
             refused = problem
             await asyncio.sleep(GRID_POLL_S)
 
