@@ -11,9 +11,15 @@ Markers are real ArUco bit patterns from ``cv2.aruco`` with a white quiet border
 of one cell around the black square, as you would print them. Calibration boards
 (a world's ``[[board]]``: chessboards, or ChArUco boards from ``cv2.aruco``) are
 drawn the same way, with a white margin of one square; `CameraRenderer.board_corners`
-gives their inner corners' true pixels. Nearer things are drawn over farther ones
-(the lab room is empty and convex, so its markers never overlap). A marker block's faces
-(`WorldMap.faces`) are drawn as markers; the cube's body is not drawn, and hides nothing.
+gives their inner corners' true pixels. Nearer markers are drawn over farther ones.
+A marker block's faces (`WorldMap.faces`) are drawn as markers; the cube's body is not drawn.
+
+The world's obstacles (``[[obstacle]]``: walls, boxes) are drawn as solid grey prisms standing
+on the floor, one flat shade per face, with a depth buffer: a marker or board is drawn only where
+no obstacle stands nearer the lens (a print on an obstacle's face, within `ON_SURFACE` of it,
+shows), so a marker behind a box is hidden as a real camera would not see it, and one half
+behind it is cut in half. A marker with any part of it hidden (its white quiet border
+included: a detector needs it) is not in the ground truth's `Visible` list.
 
 The lens is the intrinsics' own, distortion included: with distortion coefficients
 the frame is drawn through an ideal pinhole onto a larger canvas, then bent with
@@ -25,6 +31,7 @@ the frame is drawn through an ideal pinhole onto a larger canvas, then bent with
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -39,6 +46,11 @@ NEAR = 0.02
 """Points closer than this in front of the lens (m) are not drawn."""
 BOARD_SUPERSAMPLE = 4
 """Calibration boards are drawn at this many times the frame's resolution, then averaged down."""
+ON_SURFACE = 0.01
+"""A marker at most this far (m, along the line of sight) behind an obstacle's face is on it,
+printed and stuck there: it shows. The lab's markers hang on the walls' inner faces."""
+LIGHT = np.array([0.45, 0.3, 0.84])
+"""Direction towards the light (from above, a little from +x +y): faces turned to it are brighter."""
 
 
 @dataclass(frozen=True)
@@ -106,6 +118,47 @@ def board_texture(board: Board, cell_px: int) -> np.ndarray:
     return cv2.copyMakeBorder(inner, cell_px, cell_px, cell_px, cell_px, cv2.BORDER_CONSTANT, value=255)
 
 
+def obstacle_faces(world: WorldMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every obstacle as the faces of a prism on the floor: its four sides and its top.
+
+    Returns the faces' world corners (F, 4, 3), m; their outward unit normals (F, 3); and the grey
+    level each is drawn with (F,), from how much it faces `LIGHT`. (A bottom face is never seen:
+    it lies on the floor.)"""
+    corners, normals, greys = [], [], []
+    light = LIGHT / np.linalg.norm(LIGHT)
+    for obstacle in world.obstacles:
+        cx, cy, hl, hw, yaw = obstacle.rectangle()
+        c, s = math.cos(yaw), math.sin(yaw)
+        # the footprint anticlockwise seen from above, so each edge's outward normal is its direction turned -90°
+        foot = [(cx + c * u - s * v, cy + s * u + c * v) for u, v in ((hl, -hw), (hl, hw), (-hl, hw), (-hl, -hw))]
+        h = obstacle.height
+        for (ax, ay), (bx, by) in zip(foot, foot[1:] + foot[:1], strict=True):
+            corners.append([(ax, ay, h), (bx, by, h), (bx, by, 0.0), (ax, ay, 0.0)])
+            edge = math.hypot(bx - ax, by - ay)
+            normals.append(((by - ay) / edge, -(bx - ax) / edge, 0.0))
+        corners.append([(x, y, h) for x, y in foot])
+        normals.append((0.0, 0.0, 1.0))
+    normals_a = np.array(normals, dtype=float).reshape(-1, 3)
+    # half-Lambert: a face turned away from the light is dimmer, never black (the room has other light)
+    greys = 90 + 90 * (0.5 + 0.5 * (normals_a @ light)) if len(normals_a) else np.zeros(0)
+    return np.array(corners, dtype=float).reshape(-1, 4, 3), normals_a, greys.round().astype(np.uint8)
+
+
+def clip_near(polygon: np.ndarray) -> np.ndarray:
+    """The part of a convex camera-frame polygon (n, 3) at least `NEAR` in front of the lens
+    (Sutherland-Hodgman against one plane): a wall beside the robot runs behind the camera."""
+    inside = polygon[:, 2] >= NEAR
+    if inside.all():
+        return polygon
+    out = []
+    for a, b in zip(polygon, np.roll(polygon, -1, axis=0), strict=True):
+        if a[2] >= NEAR:
+            out.append(a)
+        if (a[2] >= NEAR) != (b[2] >= NEAR):
+            out.append(a + (NEAR - a[2]) / (b[2] - a[2]) * (b - a))
+    return np.array(out).reshape(-1, 3)
+
+
 def true_intrinsics(config: RobotConfig) -> Intrinsics:
     """The simulated camera's true lens, ``[sim.lens]`` over the nominal camera of ``[camera]``."""
     cam, lens = config.camera, config.sim.lens
@@ -162,6 +215,8 @@ class CameraRenderer:
                                       for b in world.boards]).reshape(-1, 4, 3)
         self._board_normals = np.array([board_axes(b.yaw, b.tilt)[2] for b in world.boards]).reshape(-1, 3)
         self._board_centres = np.array([[b.x, b.y, b.z] for b in world.boards]).reshape(-1, 3)
+        self._obstacles, self._obstacle_normals, self._obstacle_greys = obstacle_faces(world)
+        self._obstacle_centres = self._obstacles.mean(axis=1)
         self._background = self._make_background()
         # A bank of noise images drawn once: drawing 300 k normals per frame would cost more
         # than the whole rest of the render.
@@ -266,6 +321,81 @@ class CameraRenderer:
         self._warp(big, tex, big_quad)
         image[y0:y1, x0:x1] = cv2.resize(big, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
 
+    def _bbox(self, quad: np.ndarray) -> tuple[int, int, int, int] | None:
+        """The canvas pixels (x0, y0, x1, y1: a slice's ends) a polygon (n x 2 px) may touch; None if none."""
+        height, width = self._canvas_size[1], self._canvas_size[0]
+        x0, y0 = np.floor(quad.min(axis=0)).astype(int)
+        x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 1
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+        return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
+
+    def _inverse_depth(self, normal: np.ndarray, point: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+        """1 / depth (1/m, camera z) of a camera-frame plane at each canvas pixel of ``box``.
+
+        A pixel (u, v) looks along ((u - cx) / fx, (v - cy) / fy, 1); the plane n·p = d meets it at
+        depth d / (n·ray), so 1/depth is affine in u and v: one row plus one column per plane."""
+        k = self._canvas_k
+        d = float(normal @ point)
+        if d == 0.0:  # seen edge-on: it covers no pixel
+            return np.zeros((box[3] - box[1], box[2] - box[0]), np.float32)
+        x0, y0, x1, y1 = box
+        du = normal[0] / (k[0, 0] * d)
+        dv = normal[1] / (k[1, 1] * d)
+        c = (normal[2] - normal[0] * k[0, 2] / k[0, 0] - normal[1] * k[1, 2] / k[1, 1]) / d
+        u = np.arange(x0, x1, dtype=np.float32) * np.float32(du)
+        v = np.arange(y0, y1, dtype=np.float32) * np.float32(dv) + np.float32(c)
+        return v[:, None] + u[None, :]
+
+    @staticmethod
+    def _fill(box: tuple[int, int, int, int], polygon: np.ndarray) -> np.ndarray:
+        """A boolean mask of ``box`` inside the convex polygon (n x 2 canvas px)."""
+        x0, y0, x1, y1 = box
+        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        points = np.round((polygon - [x0, y0]) * 16).astype(np.int32)  # 4 bits of sub-pixel precision
+        cv2.fillConvexPoly(mask, points, 1, cv2.LINE_8, shift=4)
+        return mask.view(bool)
+
+    def _draw_obstacles(self, image: np.ndarray, to_camera: Callable[[np.ndarray], np.ndarray],
+                        lens: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray | None:
+        """Paint the obstacles' faces that turn towards the lens, the nearest one on each pixel;
+        return the depth buffer they leave (1/depth per canvas pixel, 0 where none), None if none."""
+        if not len(self._obstacles):
+            return None
+        facing = np.einsum("ij,ij->i", self._obstacle_normals, lens - self._obstacle_centres) > 0
+        corners_c = to_camera(self._obstacles)
+        normals_c = self._obstacle_normals @ world_from_camera
+        depth = np.zeros((self._canvas_size[1], self._canvas_size[0]), np.float32)
+        for i in np.flatnonzero(facing & (corners_c[..., 2] > NEAR).any(axis=1)):
+            polygon = clip_near(corners_c[i])
+            if len(polygon) < 3:
+                continue
+            pixels = self._project(polygon)
+            box = self._bbox(pixels)
+            if box is None:
+                continue
+            x0, y0, x1, y1 = box
+            nearer = self._inverse_depth(normals_c[i], corners_c[i, 0], box)
+            seen = depth[y0:y1, x0:x1]
+            drawn = self._fill(box, pixels)
+            drawn &= nearer > seen
+            np.copyto(seen, nearer, where=drawn)  # copyto: masked indexing costs several times more
+            np.copyto(image[y0:y1, x0:x1], self._obstacle_greys[i], where=drawn)
+        return depth
+
+    def _hidden(self, depth: np.ndarray | None, quad: np.ndarray, normal: np.ndarray,
+                point: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+        """Where an obstacle stands in front of a flat thing (its canvas quad, its camera-frame
+        plane): its box and the mask of those pixels; None if no obstacle is in its box."""
+        if depth is None or (box := self._bbox(quad)) is None:
+            return None
+        x0, y0, x1, y1 = box
+        obstacle = depth[y0:y1, x0:x1]
+        if not obstacle.any():
+            return None
+        mine = self._inverse_depth(normal, point, box)
+        # the obstacle is nearer by more than ON_SURFACE: 1/zo > 1/(zm - e)  <=>  izo > izm (1 + e izo)
+        return box, obstacle > mine * (1 + ON_SURFACE * obstacle)
+
     @staticmethod
     def _warp(image: np.ndarray, tex: np.ndarray, quad: np.ndarray) -> None:
         """Warp ``tex`` onto ``quad`` (4x2 px: its TL, TR, BR, BL corners), touching only its bounding box."""
@@ -319,16 +449,31 @@ class CameraRenderer:
                 drawn.append((float(np.linalg.norm(board_to_lens[i])), "board", i))
 
         image = self._background.copy()
+        depth = self._draw_obstacles(image, to_camera, lens, world_from_camera)
+        normals_c = self._normals @ world_from_camera
         visible: list[Visible] = []
         for _, kind, i in sorted(drawn, reverse=True):
             if kind == "board":
-                self._draw_board(image, i, self._project(boards_c[i]))
+                quad = self._project(boards_c[i])
+                hidden = self._hidden(depth, quad, self._board_normals[i] @ world_from_camera, boards_c[i, 0])
+                before = self._copy(image, hidden)
+                self._draw_board(image, i, quad)
+                if hidden is not None and before is not None:
+                    self._restore(image, before, *hidden)
                 continue
             marker = self._faces[i]
-            self._draw(image, marker.id, self._project(quiet_c[i]), self._project(black_c[i]))
+            quiet = self._project(quiet_c[i])
+            hidden = self._hidden(depth, quiet, normals_c[i], black_c[i, 0])
+            before = self._copy(image, hidden)
+            self._draw(image, marker.id, quiet, self._project(black_c[i]))
+            covered = False
+            if hidden is not None and before is not None:
+                self._restore(image, before, *hidden)
+                box, mask = hidden
+                covered = bool((mask & self._fill(box, quiet)).any())  # the quiet border too: a detector needs it
             black = self._frame_pixels(black_c[i])
             inside = ((black >= 0) & (black <= [self.width - 1, self.height - 1])).all()
-            if inside:
+            if inside and not covered:
                 rng, bearing = range_bearing(world_from_robot.T @ (self._centres[i] - robot_origin))
                 cos_inc = float(self._normals[i] @ to_lens[i]) / distance[i]
                 visible.append(Visible(marker.id, rng, bearing, float(distance[i]),
@@ -336,6 +481,20 @@ class CameraRenderer:
         if self._lens_maps is not None:
             image = cv2.remap(image, *self._lens_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return self._finish(image), visible
+
+    @staticmethod
+    def _copy(image: np.ndarray, hidden: tuple[tuple[int, int, int, int], np.ndarray] | None) -> np.ndarray | None:
+        """The pixels of the box of `_hidden`, as they are before a marker is drawn over them."""
+        if hidden is None:
+            return None
+        x0, y0, x1, y1 = hidden[0]
+        return image[y0:y1, x0:x1].copy()
+
+    @staticmethod
+    def _restore(image: np.ndarray, before: np.ndarray, box: tuple[int, int, int, int], mask: np.ndarray) -> None:
+        """Put back, inside ``box``, the pixels an obstacle hides (``mask``) as they were ``before``."""
+        x0, y0, x1, y1 = box
+        np.copyto(image[y0:y1, x0:x1], before, where=mask)
 
     def board_corners(self, x: float, y: float, theta: float) -> list[np.ndarray | None]:
         """Per board of the world: where its inner corners are in the frame seen from pose (x, y, theta),

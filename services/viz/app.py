@@ -10,6 +10,9 @@ Data flow, and where it may be dropped (always here on the laptop, never on the 
   the newest sample, so a slow laptop never pushes back on the robot.
 * ``--serve`` holds the recording in a gRPC server in this process with a
   memory limit: when viewers are slow or gone, the oldest data is dropped there.
+* The occupancy grid (``map/grid``) is a query, not a stream: viz asks each robot for it every
+  `GRID_POLL_S` and draws it only when the answer differs from the one drawn (it is large and
+  static). A robot without a grid service simply has no grid on its map.
 * Without ``--robot``, robots are found by their liveliness tokens
   (``icefloe/*/alive/*``) and each appears under ``/robots/<name>`` in its own tab.
 """
@@ -27,9 +30,11 @@ from typing import Any
 import rerun as rr
 
 from icefloe.config import RobotConfig
-from icefloe.errors import ConfigError
+from icefloe.errors import BadPayload, ConfigError, NotReachable
+from icefloe.grid import Grid, of_robot
 from icefloe.runtime import Node
 from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 from icefloe.schemas.keys import Topic
 from icefloe.worldmap import Rectangle, load_world
 
@@ -41,6 +46,10 @@ from .viewer import Viewer
 
 APP_ID = "icefloe"
 DISCOVERY_INTERVAL_S = 1.0
+GRID_POLL_S = 5.0
+"""How often viz asks a robot for its occupancy grid (``map/grid``); it is drawn only when it changed."""
+GRID_TIMEOUT_S = 10.0
+PROBLEM_CHARS = 300
 
 
 @dataclass(frozen=True)
@@ -95,6 +104,16 @@ def world_obstacles(config: RobotConfig) -> list[Rectangle]:
     return [o.rectangle() for o in world.obstacles]
 
 
+def world_grid(config: RobotConfig, log: logging.Logger) -> Grid | None:
+    """The occupancy grid of the config's world, as the grid service would serve it (for a
+    recording, which holds no queries); None, and why, if it cannot be made."""
+    try:
+        return of_robot(config)
+    except ConfigError as exc:
+        log.warning("the map shows no occupancy grid: %s", exc)
+        return None
+
+
 def open_recording(options: VizOptions, robots: list[str], run_dir: Path) -> tuple[rr.RecordingStream, Viewer | None]:
     """A Rerun recording with the sink the options ask for, and the default blueprint; and the
     native viewer it streams to (None with ``--save`` or ``--serve``)."""
@@ -138,6 +157,7 @@ class Shown:
         self.loggers[robot] = logger
         for stream in STREAMS:
             self._tasks.create_task(self._follow(logger, stream))
+        self._tasks.create_task(self._follow_grid(logger))
         # A new robot gets its own tab; the layout is sent again with it.
         self.rec.send_blueprint(blueprint(list(self.loggers)))
         self.node.log.info("showing robot %r", robot)
@@ -154,6 +174,30 @@ class Shown:
             except Exception as exc:  # a message that decodes but cannot be drawn must not stop the viewer
                 key = keys.key(logger.robot, stream.topic)
                 self.node.limited.warning(f"{logger.robot}/{stream.topic.name}", "%s: dropped: %s", key, exc)
+
+    async def _follow_grid(self, logger: RobotLogger) -> None:
+        """Ask the robot for its occupancy grid now and then; draw it when it changed. A grid that
+        cannot be drawn is named once (until another problem, or a good grid, comes)."""
+        key = keys.key(logger.robot, keys.MAP_GRID)
+        refused = ""
+        while True:
+            problem = ""
+            try:
+                grid = await self.node.query(keys.MAP_GRID, m.GridRequest(), robot=logger.robot,
+                                             timeout=GRID_TIMEOUT_S)
+                if logger.grid(grid):
+                    self.node.log.info("%s: drew the occupancy grid of world %r, %d x %d cells of %.3f m", key,
+                                       grid.world[:64], grid.width, grid.height, grid.resolution)
+            except NotReachable:
+                pass  # no grid service on this robot (yet): nothing to draw
+            except BadPayload as exc:  # not an OccupancyGrid: the message names the key and field
+                problem = f"{key}: dropped: {str(exc).removeprefix(key + ': ')}"
+            except ValueError as exc:  # an OccupancyGrid that cannot be a grid (`grid_cells`)
+                problem = f"{key}: dropped: {exc}"
+            if problem and problem != refused:  # a student's error reply may be long: one line, not a page
+                self.node.limited.warning(f"{logger.robot}/map/grid", "%s", problem[:PROBLEM_CHARS])
+            refused = problem
+            await asyncio.sleep(GRID_POLL_S)
 
     async def discover(self) -> None:
         """Add every robot that holds a liveliness token, now and whenever one appears."""

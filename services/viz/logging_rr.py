@@ -16,6 +16,7 @@ map/slam, map/slam/covariance      SLAM's pose arrow and its 95 % ellipse      s
 map/slam/landmarks                 SLAM's landmarks, 95 % ellipses             slam/map
 map/rays                           a line to each marker seen in this frame    camera/landmarks
 map/obstacles                      the world file's walls and boxes (static)   localizer.world
+map/grid                           the occupancy grid, a cell per pixel        map/grid (a query)
 map/path                           the path the follower drives ([] clears)    nav/path
 log/nav                            the follower's state, on each change        nav/status
 camera/image, camera/image/markers the JPEG and the detected marker outlines   camera/image, .../landmarks
@@ -45,6 +46,7 @@ from collections.abc import Sequence
 import numpy as np
 import rerun as rr
 
+from icefloe.grid import FREE, MAX_CELLS, OCCUPIED, Grid
 from icefloe.schemas import messages as m
 from icefloe.worldmap import Rectangle
 
@@ -76,6 +78,12 @@ SLAM_COLOR = (0, 190, 190)
 REFERENCE_MAP_COLOR = (255, 140, 0)
 OBSTACLE_COLOR = (90, 90, 90)
 PATH_COLOR = (255, 60, 200)
+GRID_FREE_COLOR = (255, 255, 255, 20)
+"""A free cell: a faint veil, so the map shows where the grid ends."""
+GRID_OCCUPIED_COLOR = (140, 140, 140, 190)
+"""An occupied cell: lighter than the obstacles' outlines, which are drawn over it."""
+GRID_DRAW_ORDER = -20.0
+"""Beneath everything else on the map (Rerun draws lines and points at 30, images at -10)."""
 TEXT_LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "error": "ERROR", "critical": "CRITICAL"}
 
 
@@ -159,6 +167,26 @@ def obstacle_outlines(rects: Sequence[Rectangle]) -> list[np.ndarray]:
     return outlines
 
 
+def grid_cells(msg: m.OccupancyGrid) -> np.ndarray:
+    """The cells of a ``map/grid`` answer as a (height, width) uint8 array, row 0 at y = origin_y;
+    ValueError naming the field if the message cannot be a grid, or one larger than
+    `icefloe.grid.MAX_CELLS` (a grid is drawn whole: its size is what bounds viz's memory)."""
+    if msg.width < 1 or msg.height < 1:
+        raise ValueError(f"fields `width` x `height`: {msg.width} x {msg.height} is no grid")
+    if msg.width * msg.height > MAX_CELLS or len(msg.cells) > MAX_CELLS:
+        raise ValueError(f"fields `width` x `height`: {msg.width} x {msg.height} cells ({len(msg.cells)} bytes in "
+                         f"`cells`), more than the {MAX_CELLS} cells a grid may have")
+    if len(msg.cells) != msg.width * msg.height:
+        raise ValueError(f"field `cells` has {len(msg.cells)} bytes, not `width` x `height` = "
+                         f"{msg.width} x {msg.height} = {msg.width * msg.height}")
+    if msg.resolution <= 0:
+        raise ValueError(f"field `resolution` must be > 0 m, got {msg.resolution}")
+    cells = np.frombuffer(msg.cells, dtype=np.uint8).reshape(msg.height, msg.width)
+    if cells.max() > OCCUPIED:
+        raise ValueError(f"field `cells`: a cell is {FREE} (free) or {OCCUPIED} (occupied), not {int(cells.max())}")
+    return cells
+
+
 class Trail:
     """The recent path of one pose source, thinned by distance."""
 
@@ -192,6 +220,7 @@ class RobotLogger:
         self._trail_rate = {name: Decimator(TRAIL_RATE_HZ) for name in self._trails}
         self._ray_pose: dict[str, tuple[float, float, float]] = {}
         self._nav_state: tuple[str, int, str] | None = None
+        self._grid: tuple[object, ...] | None = None
 
     def _at(self, stamp: int) -> None:
         self.rec.set_time(TIMELINE, timestamp=np.datetime64(stamp, "ns"))
@@ -228,6 +257,39 @@ class RobotLogger:
         if rects:
             self._log("map/obstacles", rr.LineStrips2D(obstacle_outlines(rects), colors=OBSTACLE_COLOR, radii=0.008),
                       static=True)
+
+    def grid(self, msg: m.OccupancyGrid) -> bool:
+        """The occupancy grid the grid service answers (``map/grid``): drawn when it differs from
+        the one drawn last (viz asks again now and then; the grid is large and seldom changes).
+        True if it was drawn; ValueError (the caller drops it with one line) if it cannot be a
+        grid (`grid_cells`)."""
+        cells = grid_cells(msg)
+        return self.occupancy(cells, msg.resolution, msg.origin_x, msg.origin_y,
+                       (msg.world, msg.inflation, msg.cells))
+
+    def world_grid(self, grid: Grid) -> bool:
+        """A grid made here (`icefloe.grid`), e.g. of the world file when a recording is played."""
+        return self.occupancy(grid.cells, grid.resolution, grid.origin_x, grid.origin_y,
+                       (grid.world, grid.inflation, grid.cells.tobytes()))
+
+    def occupancy(self, cells: np.ndarray, resolution: float, origin_x: float, origin_y: float,
+                  what: tuple[object, ...] = ()) -> bool:
+        """Cells (rows, cols; row 0 at y = ``origin_y``; 0 free, 1 occupied) as one image on the map,
+        static (it stands for the whole run, like the obstacles), again only when it changed.
+
+        Pixel (col, row) of an image covers [col, col + 1) x [row, row + 1) of its space; a
+        transform scales that by ``resolution`` and moves it to the origin, so the pixel lands on
+        the cell's square in the world (and, under the map's y flip, row 0 at the bottom)."""
+        key = (resolution, origin_x, origin_y, cells.shape, *what)
+        if key == self._grid:
+            return False
+        self._grid = key
+        self._log("map/grid",
+                  rr.AnnotationContext([(FREE, "free", GRID_FREE_COLOR), (OCCUPIED, "occupied", GRID_OCCUPIED_COLOR)]),
+                  rr.Transform3D(translation=[origin_x, origin_y, 0.0], scale=[resolution, resolution, 1.0]),
+                  rr.SegmentationImage(cells, draw_order=GRID_DRAW_ORDER),
+                  static=True)
+        return True
 
     def path(self, msg: m.NavPath) -> None:
         """The path the follower is driving (``nav/path``); an empty one clears it. The schema has

@@ -5,6 +5,8 @@ each at its own ``stamp`` on the ``stamp`` timeline (``oled/frame``, which has n
 the recorder received it), so the time slider scrubs through the recorded session. Unlike the
 live view nothing is thinned out: a file is looked at after the fact, every sample is worth a
 point. Raw channels (keys outside the key table, payloads that did not decode) are not drawn.
+A recording holds no query answers, so the occupancy grid drawn is the one of the config's world
+file (`icefloe.grid.of_robot`), as are the landmarks and obstacles.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from icefloe.errors import BadRecording
 from icefloe.logs import LimitedLog
 from icefloe.schemas import keys
 
-from .app import STREAMS, open_recording, world_markers, world_obstacles
+from .app import STREAMS, open_recording, world_grid, world_markers, world_obstacles
 from .logging_rr import RobotLogger
 from .options import VizOptions
 
@@ -43,12 +45,15 @@ def show(bag: Bag, config: RobotConfig, options: VizOptions) -> int:
         raise BadRecording(f"{bag.files[0].path}: no icefloe keys{which} to show")
     rec, _viewer = open_recording(options, robots, config.runtime_dir)
     markers, obstacles = world_markers(config, log), world_obstacles(config)
+    grid = world_grid(config, log) if obstacles else None  # a recording holds no queries: the world file's
     loggers: dict[str, RobotLogger] = {}
     for robot in robots:
         logger = loggers[robot] = RobotLogger(rec, robot, capture_width=config.camera.width)
         logger.setup()
         logger.landmark_map(markers)
         logger.obstacles(obstacles)
+        if grid is not None:
+            logger.world_grid(grid)
     streams = {s.topic.name: s for s in STREAMS}
     warn = LimitedLog(log)
     shown = 0
