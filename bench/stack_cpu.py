@@ -1,6 +1,6 @@
 """CPU of every process of the simulated robot, standing and then driving, against a budget each.
 
-    .venv/bin/python bench/stack_cpu.py [--seconds 20]
+    .venv/bin/python bench/stack_cpu.py [--seconds 20] [--course]
 
 Starts `icefloe up` on the default simulated robot (on a free port, no viewer),
 waits until it has settled, reads each process's CPU time from /proc over a
@@ -9,6 +9,12 @@ a screen that does not change, the battery between readings), then over a
 window while `icefloe pub` drives it in a circle. Each service has a budget
 for each window (`BUDGETS`, % of one core of this machine); the script prints
 every figure next to its budget and exits 1 naming each service over it.
+
+``--course``: the course's reference services run too (grid, planner, follower, mapper,
+slam: ``OPTIONAL_SERVICES``, docs/planning.md, docs/slam.md), each with its budget
+(`COURSE_BUDGETS`). Driving is then the follower's: the planner plans the four legs of a
+0.8 m square in the lab's clear space (in the driving window) and the follower drives the
+square, steering from the localizer, while the map maker and SLAM map the markers seen.
 
 In simulation the camera service renders its own frames (``camera.source =
 "sim"``): that rendering is the simulator's, not the robot's. The renderer's
@@ -22,6 +28,7 @@ every process but the simulator and its renderer, with the router.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import contextlib
 import math
 import os
@@ -33,6 +40,8 @@ import time
 from pathlib import Path
 
 from common import free_port, robot_config
+
+from icefloe.config import ALL_SERVICES, OPTIONAL_SERVICES
 
 ROOT = Path(__file__).resolve().parent.parent
 TICKS = os.sysconf("SC_CLK_TCK")
@@ -54,6 +63,20 @@ BUDGETS: dict[str, tuple[float, float]] = {
     "sim": (25.0, 25.0),           # bench/sim_cpu.py's goal
     "sim (camera renderer)": (20.0, 20.0),
 }
+COURSE_BUDGETS: dict[str, tuple[float, float]] = {
+    # --course: the reference services (standing, driving the square), % of one core
+    "grid": (0.5, 0.5),            # a queryable for the occupancy grid nobody asks for here
+    "planner": (0.5, 2.0),         # idle, then five short plans in the driving window
+    "follower": (2.0, 4.0),        # idle: its 20 Hz loop and loc/pose keep running (see docs/planning.md)
+    "mapper": (4.0, 4.0),          # 15 Hz landmarks with the true pose, a map at 2 Hz
+    "slam": (6.0, 6.0),            # 15 Hz landmarks, 50 Hz odometry, an EKF over the markers seen
+}
+SQUARE = [(0.8, 0.0), (0.8, 0.8), (0.0, 0.8), (0.0, 0.0)]
+"""--course: corners the follower drives to in turn from the start pose (0, 0), m: inside the
+lab's clear square (docs/planning.md)."""
+CENTRE = (0.4, 0.4)
+"""--course: where the path ends, after the laps (a point no lap passes: the follower stops
+when it comes within its tolerance of the end)."""
 
 
 def cpu_seconds(pid: int) -> float:
@@ -97,10 +120,9 @@ def child_pids(parent: int) -> list[int]:
     return pids
 
 
-def started(config: Path, timeout: float) -> dict[str, list[int]]:
-    """The processes of the robot, once every one with a budget runs (a busy machine may take a
+def started(config: Path, wanted: set[str], timeout: float) -> dict[str, list[int]]:
+    """The processes of the robot, once every one of ``wanted`` runs (a busy machine may take a
     minute to start them all)."""
-    wanted = set(BUDGETS) - {"sim (camera renderer)"}
     deadline = time.monotonic() + timeout
     while not wanted <= set(procs := children(config)):
         if time.monotonic() > deadline:
@@ -109,8 +131,11 @@ def started(config: Path, timeout: float) -> dict[str, list[int]]:
     return procs
 
 
-def window(procs: dict[str, list[int]], seconds: float) -> dict[str, float]:
-    """% of one core each service used over the next ``seconds``."""
+Snapshot = tuple[float, dict[str, float]]
+
+
+def snapshot(procs: dict[str, list[int]]) -> Snapshot:
+    """Now, and the CPU seconds each service has used so far."""
     def total(pids: list[int]) -> float:
         used = 0.0
         for pid in pids:
@@ -118,11 +143,71 @@ def window(procs: dict[str, list[int]], seconds: float) -> dict[str, float]:
                 used += cpu_seconds(pid)
         return used
 
-    before = {n: total(pids) for n, pids in procs.items()}
-    t0 = time.monotonic()
+    return time.monotonic(), {n: total(pids) for n, pids in procs.items()}
+
+
+def usage(first: Snapshot, second: Snapshot) -> dict[str, float]:
+    """% of one core each service used between two snapshots."""
+    wall = second[0] - first[0]
+    return {n: 100 * (second[1][n] - used) / wall for n, used in first[1].items()}
+
+
+def window(procs: dict[str, list[int]], seconds: float) -> dict[str, float]:
+    """% of one core each service used over the next ``seconds``."""
+    first = snapshot(procs)
     time.sleep(seconds)
-    wall = time.monotonic() - t0
-    return {n: 100 * (total(pids) - before[n]) / wall for n, pids in procs.items()}
+    return usage(first, snapshot(procs))
+
+
+async def follow_square(config: Path, procs: dict[str, list[int]], seconds: float) -> dict[str, float]:
+    """--course's driving window: the planner plans the legs of `SQUARE`, the follower drives it
+    (laps enough to outlast the window); % of one core each service used over ``seconds``."""
+    from icefloe import config as config_mod
+    from icefloe.runtime import Node
+    from icefloe.schemas import keys
+    from icefloe.schemas import messages as m
+
+    cfg = config_mod.load(str(config))
+    async with Node("cpubench", cfg) as node:
+        first = snapshot(procs)
+        legs: list[list[m.Waypoint]] = []
+        start = (0.0, 0.0)
+        for goal in [*SQUARE, CENTRE]:
+            plan = await node.query(keys.PLAN, m.PlanRequest(start_x=start[0], start_y=start[1],
+                                                            goal_x=goal[0], goal_y=goal[1]), timeout=30.0)
+            if not plan.ok:
+                raise SystemExit(f"the planner found no path {start} -> {goal}: {plan.reason}")
+            legs.append(plan.path[1:] if legs else plan.path)
+            start = goal
+        lap, last = [p for leg in legs[:-1] for p in leg], legs[-1]
+        laps = math.ceil(seconds * cfg.follower.speed / (4 * 0.8)) + 1
+        status = node.latest(keys.NAV_STATUS)
+        node.publisher(keys.NAV_PATH).put(node.command(m.NavPath, points=lap + lap[1:] * (laps - 1) + last))
+        await asyncio.sleep(max(0.0, seconds - (time.monotonic() - first[0])))
+        used = usage(first, snapshot(procs))
+        if (now := status.get()) is None or now.state != "following":
+            raise SystemExit(f"the follower was not following the square at the window's end: {now}")
+        return used
+
+
+async def planner_ready(config: Path, timeout: float) -> None:
+    """Wait until the planner answers (it makes its grid first)."""
+    from icefloe import config as config_mod
+    from icefloe.runtime import Node
+    from icefloe.schemas import keys
+    from icefloe.schemas import messages as m
+
+    deadline = time.monotonic() + timeout
+    async with Node("cpubench", config_mod.load(str(config))) as node:
+        while True:
+            try:
+                await node.query(keys.PLAN, m.PlanRequest(start_x=0.0, start_y=0.0, goal_x=0.1, goal_y=0.0),
+                                 timeout=10.0)
+                return
+            except Exception as exc:
+                if time.monotonic() > deadline:
+                    raise SystemExit(f"the planner did not answer within {timeout:.0f} s: {exc}") from None
+                await asyncio.sleep(1.0)
 
 
 def renderer_share(config: Path, frames: int = 40) -> float:
@@ -146,39 +231,53 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=20.0, help="length of each window, s")
     p.add_argument("--settle", type=float, default=10.0, help="wait this long once every process is up, s")
+    p.add_argument("--course", action="store_true",
+                   help="run the course's reference services too (grid, planner, follower, mapper, slam), "
+                        "each with its budget; the follower drives a planned square")
     p.add_argument("--drive", action="store_true",
                    help="(for older command lines) both windows, standing and driving, are always measured")
     args = p.parse_args()
-    config = robot_config(Path(tempfile.mkdtemp()), "cpubench", f"[webapi]\nport = {free_port()}\n")
+    budgets = {**BUDGETS, **(COURSE_BUDGETS if args.course else {})}
+    extra = f"[webapi]\nport = {free_port()}\n"
+    if args.course:
+        extra = f"services = {list(ALL_SERVICES + OPTIONAL_SERVICES)!r}\n" + extra
+    config = robot_config(Path(tempfile.mkdtemp()), "cpubench", extra)
     icefloe = [sys.executable, "-m", "icefloe.cli"]
     up = subprocess.Popen([*icefloe, "up", str(config), "--no-viz"], stdout=subprocess.DEVNULL,
                           stderr=subprocess.DEVNULL, start_new_session=True)
     driver = None
     load = os.getloadavg()[0]
     try:
-        procs = started(config, timeout=180.0)
+        procs = started(config, set(budgets) - {"sim (camera renderer)"}, timeout=180.0)
         time.sleep(args.settle)  # settled: the first frames, poses and screens are behind us
+        if args.course:
+            asyncio.run(planner_ready(config, timeout=120.0))
+            time.sleep(2.0)  # the readiness query's own work is behind us
         standing = window(procs, args.seconds)
-        driver = subprocess.Popen([*icefloe, "pub", "cmd/twist", '{"v": 0.15, "w": 0.5}', "--rate", "10",
-                                   "--config", str(config)], stdout=subprocess.DEVNULL)
-        time.sleep(3.0)
-        driving = window(procs, args.seconds)
+        if args.course:
+            driving = asyncio.run(follow_square(config, procs, args.seconds))
+        else:
+            driver = subprocess.Popen([*icefloe, "pub", "cmd/twist", '{"v": 0.15, "w": 0.5}', "--rate", "10",
+                                       "--config", str(config)], stdout=subprocess.DEVNULL)
+            time.sleep(3.0)
+            driving = window(procs, args.seconds)
         render = renderer_share(config)
     finally:
         if driver is not None:
             driver.terminate()
         up.send_signal(signal.SIGINT)
         up.wait(60)
-    for usage in (standing, driving):
-        usage["sim (camera renderer)"] = min(render, usage.get("camera", 0.0))
-        usage["camera"] = usage.get("camera", 0.0) - usage["sim (camera renderer)"]
+    for usage_ in (standing, driving):
+        usage_["sim (camera renderer)"] = min(render, usage_.get("camera", 0.0))
+        usage_["camera"] = usage_.get("camera", 0.0) - usage_["sim (camera renderer)"]
 
-    print(f"CPU over {args.seconds:.0f} s standing, then {args.seconds:.0f} s driving, % of one core "
+    drive = "the follower driving a planned square" if args.course else "driving"
+    print(f"CPU over {args.seconds:.0f} s standing, then {args.seconds:.0f} s {drive}, % of one core "
           f"({os.cpu_count()} cores, load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end)")
     print(f"  {'':<22} {'standing':>9} {'driving':>9}   budget")
     breaches = []
-    for name in sorted(driving, key=lambda n: (n in SIM, -driving[n])):
-        budget = BUDGETS.get(name)
+    for name in sorted(driving, key=lambda n: (n in SIM, n in COURSE_BUDGETS, -driving[n])):
+        budget = budgets.get(name)
         marks = ""
         if budget is None:
             marks = "  (no budget)"
@@ -190,9 +289,12 @@ def main() -> None:
                     breaches.append(f"{name} {phase} {used:.1f} % > {limit} %")
         limits = f"{budget[0]:g} / {budget[1]:g}" if budget else "-"
         print(f"  {name:<22} {standing[name]:8.1f}% {driving[name]:8.1f}%   {limits}{marks}")
-    for label, usage in (("standing", standing), ("driving", driving)):
-        robot = sum(v for n, v in usage.items() if n not in SIM)
-        print(f"robot side {label} (everything but the simulator and its renderer): {robot:.1f} % of one core")
+    for label, usage_ in (("standing", standing), ("driving", driving)):
+        robot = sum(v for n, v in usage_.items() if n not in SIM)
+        course = sum(v for n, v in usage_.items() if n in COURSE_BUDGETS)
+        of_which = f" (of which the course's reference services {course:.1f} %)" if args.course else ""
+        print(f"robot side {label} (everything but the simulator and its renderer): {robot:.1f} % of one core"
+              + of_which)
     print(f"simulator with its camera renderer, driving: {sum(driving.get(n, 0.0) for n in SIM):.1f} % "
           f"(the renderer {driving['sim (camera renderer)']:.1f} %, measured in this process)")
     if breaches:

@@ -332,7 +332,11 @@ class Latest(Generic[T]):
         return self.value
 
     def undeclare(self) -> None:
+        """Stop following the key; the node forgets this one too (a service that follows a key
+        only while it needs it may do so again and again: the oled service's screens)."""
         self._sub.undeclare()
+        with contextlib.suppress(ValueError):  # already forgotten
+            self._node._closables.remove(self)
 
 
 class Publisher(Generic[T]):
@@ -458,13 +462,13 @@ class Node:
             self._log_handler = None
         for task in self._tasks:
             task.cancel()
-        for item in reversed(self._closables):
+        closables, self._closables = self._closables, []
+        for item in reversed(closables):
             with contextlib.suppress(Exception):
                 if isinstance(item, Subscription):
                     item.close()
                 else:
                     item.undeclare()
-        self._closables.clear()
         if hasattr(self, "session") and not self.session.is_closed():
             self.session.close()
         for reader in self._readers:

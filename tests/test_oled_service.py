@@ -67,6 +67,13 @@ class Viewer:
             task.cancel()
 
 
+async def stream(pub: Any, message: m.Message, period: float = 0.02) -> None:
+    """Put ``message`` every ``period`` s until cancelled (a sensor's stream)."""
+    while True:
+        pub.put(message)
+        await asyncio.sleep(period)
+
+
 async def test_text_buttons_errors_and_the_penguinpi_sink(robot: Robot) -> None:
     async with robot.node() as node:
         viewer = Viewer(node)
@@ -109,11 +116,13 @@ async def test_text_buttons_errors_and_the_penguinpi_sink(robot: Robot) -> None:
         press.put(m.Buttons(stamp=time.time_ns(), button=2))
         await viewer.shows(render(7, Status(errors=1)))
 
-        # Encoders (screen 3): button 2 zeroes the counts shown and resets odometry.
+        # Encoders (screen 3): button 2 zeroes the counts shown and resets odometry. oled follows
+        # hw/wheels only while a screen shows it: send them as hwbridge does, again and again.
         node.publisher(keys.OLED_SCREEN).put(m.OledScreen(index=3))
         wheels = m.Wheels(stamp=1, ticks_left=500, ticks_right=-20, speed_left=0.1,
                           speed_right=0.1)
-        node.publisher(keys.WHEELS).put(wheels)
+        wheels_pub = node.publisher(keys.WHEELS)
+        streaming = asyncio.create_task(stream(wheels_pub, wheels))
         await viewer.shows(render(3, Status(wheels=wheels)))
         press.put(m.Buttons(stamp=time.time_ns(), button=2))
         await viewer.shows(render(3, Status(wheels=wheels, tick_zero=(500, -20))))
@@ -121,6 +130,7 @@ async def test_text_buttons_errors_and_the_penguinpi_sink(robot: Robot) -> None:
 
         node.publisher(keys.OLED_SCREEN).put(m.OledScreen(index=42))
         await wait_for(lambda: viewer.logged("index 42 is not a screen"))
+        streaming.cancel()
         assert oled.stop() == 0
         viewer.close()
 
@@ -147,4 +157,46 @@ async def test_low_battery_inverts_the_display_and_services_are_listed(make_robo
         alive = ["oled", "router", "tester"]
         await viewer.shows(render(6, Status(alive=alive, battery=reading)))
         assert oled.stop() == 0
+        viewer.close()
+
+
+async def test_fast_streams_are_followed_only_while_a_screen_shows_them(make_robot: Any) -> None:
+    """At rest the screen costs nothing: oled subscribes to hw/wheels (100 Hz) and odom/pose
+    (50 Hz) only while a screen shows them (Zenoh's matching status says whether anyone
+    listens), shows what comes after it looks again, never what it saw before, and a student
+    flipping screens a few hundred times leaves it as it was."""
+    robot: Robot = make_robot('[display]\nkind = "none"\n')
+    async with robot.node() as node:
+        viewer = Viewer(node)
+        wheels_pub, pose_pub = node.publisher(keys.WHEELS), node.publisher(keys.ODOM_POSE)
+        screen = node.publisher(keys.OLED_SCREEN)
+        oled = robot.start("oled")
+        await wait_for(lambda: viewer.frames, timeout=15)
+        await asyncio.sleep(1.0)  # settled: had it subscribed, Zenoh would say so by now
+        assert not wheels_pub.matched and not pose_pub.matched  # the network screen shows neither
+
+        screen.put(m.OledScreen(index=3))
+        await wait_for(lambda: wheels_pub.matched, timeout=15)
+        assert not pose_pub.matched
+        old = m.Wheels(stamp=1, ticks_left=7, ticks_right=8, speed_left=0.0, speed_right=0.0)
+        streaming = asyncio.create_task(stream(wheels_pub, old))
+        await viewer.shows(render(3, Status(wheels=old)))
+        streaming.cancel()
+
+        screen.put(m.OledScreen(index=8))  # pose: wheels no longer followed, the pose is
+        await wait_for(lambda: pose_pub.matched and not wheels_pub.matched, timeout=15)
+        screen.put(m.OledScreen(index=3))  # back, nothing sent since: no stale counts
+        await viewer.shows(render(3, Status()))
+
+        for i in range(300):  # flipping screens
+            screen.put(m.OledScreen(index=(3, 8, 0)[i % 3]))
+            await asyncio.sleep(0.005)
+        await wait_for(lambda: not wheels_pub.matched and not pose_pub.matched, timeout=15)
+        new = m.Wheels(stamp=2, ticks_left=9, ticks_right=10, speed_left=0.0, speed_right=0.0)
+        streaming = asyncio.create_task(stream(wheels_pub, new))
+        screen.put(m.OledScreen(index=4))  # motors: wheels again
+        await viewer.shows(render(4, Status(wheels=new)))
+        streaming.cancel()
+        assert oled.stop() == 0
+        assert "Traceback" not in oled.output
         viewer.close()

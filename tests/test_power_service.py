@@ -21,6 +21,7 @@ from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.oled.frame import Frame
+from icefloe.services.power.__main__ import READ_PERIOD_S
 
 BUTTON, REQUEST, ACK = 22, 10, 11
 
@@ -286,4 +287,25 @@ async def test_bad_battery_readings_are_logged_and_ignored(make_robot: Any,
         assert (await tester.reading(7.3)).state == "ok"  # still running, still filtering
         assert all(b.stamp != 1 for b in tester.battery)
         assert power.stop() == 0
+        tester.close()
+
+
+async def test_a_flood_of_readings_costs_a_bounded_batch(make_robot: Any, tmp_path: Path) -> None:
+    """hw/battery at thousands a second: power takes at most READ_BACKLOG readings a batch (the
+    oldest go), publishes power/battery once a batch whatever came, and answers the next reading."""
+    robot: Robot = make_robot(power_toml(tmp_path / "poweroff"))
+    async with robot.node() as node:
+        tester = FakeBridge(node)
+        power = robot.start("power")
+        await tester.until_ready()
+        t0 = time.monotonic()
+        flood = node.publisher(keys.HW_BATTERY)
+        for i in range(5000):
+            flood.put(m.BatteryReading(stamp=i + 1, voltage=7.4 if i % 7 else 99.0, current=0.1))
+        assert (await tester.reading(7.3)).state == "ok"
+        wall = time.monotonic() - t0
+        assert len(tester.battery) <= wall / READ_PERIOD_S + 3  # once a batch, not once a reading
+        await wait_for(lambda: any("outside 0..30 V" in lg.text for lg in tester.logs), timeout=15)
+        assert sum("outside 0..30 V" in lg.text for lg in tester.logs) < 50  # rate-limited, not 700 lines
+        assert power.alive() and power.stop() == 0
         tester.close()

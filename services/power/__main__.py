@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 
 from icefloe.config import Power, RobotConfig
-from icefloe.runtime import Node, Subscription, run
+from icefloe.runtime import Batches, Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
@@ -24,10 +24,24 @@ from .gpio import Lines, open_lines
 from .lines import HoldDetector
 from .shutdown import Shutdown
 
+READ_PERIOD_S = 0.5
+"""The battery readings are taken together this often, s: they come at 10 Hz and every one
+counts (persistence), but a battery changes over minutes; waking once per reading cost the
+service more than everything else it does at rest (bench/stack_cpu.py)."""
+READ_BACKLOG = 64
+"""Readings Zenoh keeps for the next batch (a flood of ``hw/battery`` loses its oldest)."""
 
-async def watch_battery(node: Node, power: Power, readings: Subscription[m.BatteryReading],
+
+def battery_readings(node: Node, power: Power) -> Batches[m.BatteryReading]:
+    """Every ``hw/battery`` reading, in order (persistence counts consecutive ones), as a list
+    each `READ_PERIOD_S`: Zenoh keeps them meanwhile, and no Python runs per reading."""
+    return node.batches(keys.HW_BATTERY, min(READ_PERIOD_S, power.silent_s / 4), maxsize=READ_BACKLOG)
+
+
+async def watch_battery(node: Node, power: Power, readings: Batches[m.BatteryReading],
                         shutdown: Shutdown) -> None:
-    """hw/battery -> power/battery; shut down once critical has persisted, or on silence while low."""
+    """hw/battery -> power/battery (once a batch: twice a second); shut down once critical has
+    persisted, or on silence while low."""
     if power.source == "i2c":
         node.log.error("power.source = \"i2c\": no I2C battery monitor driver in this build; "
                        "battery not monitored (use \"board\")")
@@ -35,38 +49,29 @@ async def watch_battery(node: Node, power: Power, readings: Subscription[m.Batte
     # "board" and "sim" read the same key: the simulator's battery reaches us through
     # its board model and hwbridge, exactly like the real one.
     monitor = BatteryMonitor(power.low_v, power.critical_v, power.critical_readings, power.pole)
-    async with asyncio.TaskGroup() as tasks:
-        tasks.create_task(_readings(node, monitor, readings, shutdown))
-        tasks.create_task(_silence(monitor, power.silent_s, shutdown))
-
-
-async def _silence(monitor: BatteryMonitor, silent_s: float, shutdown: Shutdown) -> None:
-    """Shut down when the readings stop while the battery is low (the board gave up)."""
-    while True:
-        await asyncio.sleep(min(silent_s / 4, 0.5))
-        if monitor.silent_while_low(time.monotonic(), silent_s):
-            shutdown.start("battery readings stopped while low")
-
-
-async def _readings(node: Node, monitor: BatteryMonitor,
-                    readings: Subscription[m.BatteryReading], shutdown: Shutdown) -> None:
     battery = node.publisher(keys.BATTERY)
     previous = "ok"
-    async for reading in readings:
-        try:
-            state = monitor.update(reading.voltage, reading.current, time.monotonic())
-        except BadReading as exc:
-            node.limited.warning("hw/battery", "hw/battery: %s; reading ignored", exc)
-            continue
-        assert monitor.voltage is not None
-        battery.put(m.Battery(stamp=reading.stamp, voltage=round(monitor.voltage, 4),
-                              current=round(monitor.current, 4), state=state))
-        if state != previous:
-            report = node.log.info if state == "ok" else node.log.warning
-            report("battery %s: %.2f V", state, monitor.voltage)
-            previous = state
-        if monitor.shutdown_due:
-            shutdown.start("critical battery")
+    async for batch in readings:
+        newest: m.BatteryReading | None = None
+        for reading in batch:
+            try:
+                state = monitor.update(reading.voltage, reading.current, time.monotonic())
+            except BadReading as exc:
+                node.limited.warning("hw/battery", "hw/battery: %s; reading ignored", exc)
+                continue
+            newest = reading
+            if state != previous:
+                report = node.log.info if state == "ok" else node.log.warning
+                report("battery %s: %.2f V", state, monitor.voltage)
+                previous = state
+            if monitor.shutdown_due:
+                shutdown.start("critical battery")
+        if newest is not None:  # the state after the newest good reading, with its stamp
+            assert monitor.voltage is not None
+            battery.put(m.Battery(stamp=newest.stamp, voltage=round(monitor.voltage, 4),
+                                  current=round(monitor.current, 4), state=monitor.state))
+        if monitor.silent_while_low(time.monotonic(), power.silent_s):  # the board gave up
+            shutdown.start("battery readings stopped while low")
 
 
 SHUTDOWN_BUTTON = 10
@@ -122,8 +127,7 @@ async def watch_lines(lines: Lines, power: Power, shutdown: Shutdown,
 
 async def main(config: RobotConfig) -> None:
     async with Node("power", config) as node:
-        # fifo: persistence counts consecutive readings, so none may be skipped.
-        readings = node.subscribe(keys.HW_BATTERY, latest=False)
+        readings = battery_readings(node, config.power)
         lines = open_lines(node, config.power)
         try:
             shutdown = Shutdown(node, config.power, lines)
