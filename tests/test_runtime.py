@@ -337,3 +337,74 @@ async def test_a_service_ends_cleanly_on_sigint_while_samples_stream_in(robot: R
         finally:
             running = False
             await flood
+
+
+def _wake_storm(loop: asyncio.AbstractEventLoop, count: int = 20_000) -> tuple[list[int], int]:
+    """A thread queues ``count`` items as fast as it can, signalling a `LoopWakeup` after each;
+    the loop takes them, waiting for a wake-up whenever the queue is empty. A lost wake-up hangs
+    the loop (the wait times out). Returns what the loop took, and how often it was woken."""
+    import threading
+    from collections import deque
+
+    from icefloe.runtime import LoopWakeup
+
+    async def take() -> tuple[list[int], int]:
+        items: deque[int] = deque()
+        woken = asyncio.Event()
+        calls = 0
+
+        def on_wake() -> None:
+            nonlocal calls
+            calls += 1
+            woken.set()
+
+        wakeup = LoopWakeup(asyncio.get_running_loop(), on_wake)
+
+        def produce() -> None:
+            for i in range(count):
+                items.append(i)
+                wakeup.signal()
+                if i % 500 == 0:
+                    time.sleep(0.001)  # let the loop catch up and wait now and then
+
+        producer = threading.Thread(target=produce)
+        producer.start()
+        got: list[int] = []
+        try:
+            while len(got) < count:
+                while items:
+                    got.append(items.popleft())
+                woken.clear()
+                if len(got) < count and not items:
+                    await asyncio.wait_for(woken.wait(), 30)
+        finally:
+            producer.join()
+            wakeup.close()
+        return got, calls
+
+    return loop.run_until_complete(take())
+
+
+def test_a_loop_wakeup_misses_no_sample_and_wakes_once_for_many() -> None:
+    loop = asyncio.new_event_loop()
+    try:
+        got, calls = _wake_storm(loop)
+    finally:
+        loop.close()
+    assert got == list(range(20_000))
+    assert calls < 20_000, "samples that came while the loop had not looked share a wake-up"
+
+
+def test_a_loop_wakeup_works_on_a_loop_that_watches_no_descriptors() -> None:
+    """Windows' proactor loop has no add_reader: `LoopWakeup` falls back to call_soon_threadsafe."""
+
+    class NoReaders(asyncio.SelectorEventLoop):
+        def add_reader(self, *args: object) -> None:
+            raise NotImplementedError
+
+    loop = NoReaders()
+    try:
+        got, _ = _wake_storm(loop, 5_000)
+    finally:
+        loop.close()
+    assert got == list(range(5_000))
