@@ -19,7 +19,8 @@ What it gives you:
   closes the session, so the process really ends.
 * Typed subscriptions as async iterators. Zenoh hands each sample to a thread of
   ours (`deliver_on_thread`), which only stores the raw sample and wakes the event
-  loop (``call_soon_threadsafe``). Decoding happens in the loop. Each subscription
+  loop (`LoopWakeup`: a write to an eventfd the loop watches, one for all the
+  samples that came since the loop last looked). Decoding happens in the loop. Each subscription
   has a queue policy: *latest* (keep only the newest sample: sensor streams) or
   *fifo* (keep up to ``maxsize`` in order, dropping the oldest: commands). Bad
   payloads are dropped with a log line naming the key and the field.
@@ -156,89 +157,174 @@ class RawSample:
     """time.monotonic() when the callback saw it."""
 
 
-class Subscription(Generic[T]):
-    """An async iterator over the messages of one key expression."""
+class LoopWakeup:
+    """Wakes an event loop from other threads: after `signal`, the loop runs ``callback``.
 
-    def __init__(
-        self,
-        node: Node,
-        key_expr: str,
-        decode: Callable[[RawSample], T],
-        *,
-        latest: bool,
-        maxsize: int,
-        typed: bool = True,
-    ) -> None:
+    `signal` writes to a file descriptor the loop watches (``add_reader``: an eventfd on Linux,
+    else a pipe), and only when no wake-up is pending already: samples that come before the
+    loop looks share one. ``os.write`` lets go of the GIL before the system call, so the loop
+    wakes to a free GIL (with ``call_soon_threadsafe`` it woke while the signalling thread still
+    held it, and slept again until it let go), and the callback runs as soon as the loop sees
+    the descriptor ready, one loop iteration before a ``call_soon_threadsafe`` callback would
+    (docs/runtime.md). Where the loop watches no descriptors (Windows' proactor loop) it is
+    ``call_soon_threadsafe``."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, callback: Callable[[], object]) -> None:
+        self._loop, self._callback = loop, callback
+        self._signalled = False
+        if hasattr(os, "eventfd"):
+            self._read_fd = self._write_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        else:
+            self._read_fd, self._write_fd = os.pipe()
+            os.set_blocking(self._read_fd, False)
+            os.set_blocking(self._write_fd, False)
+        try:
+            loop.add_reader(self._read_fd, self._woken)
+        except NotImplementedError:
+            self._close_fds()
+
+    # `signal` and `_woken` run once per sample, each on a thread that was asleep until then,
+    # where every line costs several times what it costs in a warm loop (docs/runtime.md): they
+    # are short, and use try where contextlib.suppress would cost more.
+
+    def signal(self) -> None:
+        """Any thread: have the loop run the callback (once for all signals since it last did)."""
+        if self._signalled:
+            return
+        self._signalled = True
+        if self._write_fd >= 0:
+            try:  # noqa: SIM105
+                os.write(self._write_fd, b"\1\0\0\0\0\0\0\0")  # an eventfd takes 8 bytes; a pipe any
+            except OSError:  # closed (its subscription is): nobody to wake
+                pass
+        else:
+            try:  # noqa: SIM105
+                self._loop.call_soon_threadsafe(self._woken)
+            except RuntimeError:  # the loop is closing: nothing to wake
+                pass
+
+    def _woken(self) -> None:
+        # Empty the descriptor before clearing the flag: a signal after this writes anew.
+        if self._read_fd >= 0:
+            try:  # noqa: SIM105
+                os.read(self._read_fd, 64)
+            except OSError:
+                pass
+        self._signalled = False
+        self._callback()
+
+    def close(self) -> None:
+        """In the loop, once no thread signals any more (idempotent)."""
+        if self._read_fd >= 0:
+            with contextlib.suppress(Exception):  # the loop may be closed already
+                self._loop.remove_reader(self._read_fd)
+            self._close_fds()
+
+    def _close_fds(self) -> None:
+        for fd in {self._read_fd, self._write_fd}:
+            os.close(fd)
+        self._read_fd = self._write_fd = -1
+
+
+class Subscription(Generic[T]):
+    """An async iterator over the messages of one key expression.
+
+    Zenoh puts each sample in the subscriber's channel; a reader thread of ours
+    (`deliver_on_thread`) takes it out, queues its key, bytes and encoding, and wakes the loop
+    (`LoopWakeup`) unless a wake-up is on its way already. The loop decodes. Why a thread of
+    ours and not Zenoh's own: `deliver_on_thread`."""
+
+    def __init__(self, node: Node, key_expr: str, type_: type[T] | None, *, latest: bool, maxsize: int) -> None:
+        """``type_``: the messages, taken on their own key only (`Node.own_key`); None:
+        `RawSample` s of any key."""
         self.key_expr = key_expr
         self.latest = latest
         self.skipped = 0
         """Samples overwritten (latest) or dropped because the queue was full (fifo)."""
         self.rejected = 0
         """Samples dropped because they did not decode, or came on a wildcard (`Node.own_key`)."""
-        self._typed = typed
         self._node = node
-        self._decode = decode
+        self._type = type_
+        self._msgpack = msgspec.msgpack.Decoder(type_) if type_ is not None else None
+        self._items: deque[tuple[str, bytes, str, float]] = deque(maxlen=1 if latest else maxsize)
         self._loop = asyncio.get_running_loop()
-        self._items: deque[RawSample] = deque(maxlen=1 if latest else maxsize)
-        self._lock = threading.Lock()
-        self._wake = asyncio.Event()
-        self._wake_pending = False
+        self._waiters: list[asyncio.Future[None]] = []
+        """Of the tasks waiting for a sample (one, unless several read this subscription)."""
+        self._wakeup = LoopWakeup(self._loop, self._woken)
         self._closed = False
         self._warn, self._kind = node.limited, node.short(key_expr)
-        self._sub = node.session.declare_subscriber(key_expr, zenoh.handlers.DefaultHandler())
+        self._key = zenoh.KeyExpr(key_expr)
+        self._sub = node.session.declare_subscriber(self._key, zenoh.handlers.DefaultHandler())
         self._reader = deliver_on_thread(self._sub.handler, self._on_sample, f"icefloe {key_expr}", node.limited)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Runs on our reader thread: copy the bytes, queue them, wake the loop once. Never block:
-        # while it waits, Zenoh queues the samples behind (and past 256, holds up the session).
-        raw = RawSample(
-            str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.monotonic()
-        )
-        with self._lock:
-            if len(self._items) == self._items.maxlen:
-                self.skipped += 1
-            self._items.append(raw)
-            if self._wake_pending:
-                return
-            self._wake_pending = True
-        with contextlib.suppress(RuntimeError):  # the loop is closing: nothing to wake
-            self._loop.call_soon_threadsafe(self._wake.set)
+        # Our reader thread: copy the bytes, queue them (a full queue drops its oldest), wake the
+        # loop. Never block: meanwhile Zenoh queues the samples behind (past 256 it waits). Each
+        # call into zenoh-python costs here (`LoopWakeup`): comparing the key and the encoding
+        # with ours costs less than making strings of them, which only the others need.
+        items = self._items
+        if len(items) == items.maxlen:
+            self.skipped += 1
+        key, encoding = sample.key_expr, sample.encoding
+        items.append((self.key_expr if key == self._key else str(key), sample.payload.to_bytes(),
+                      codec.MSGPACK if encoding == MSGPACK else str(encoding), time.monotonic()))
+        self._wakeup.signal()
 
     def __aiter__(self) -> Subscription[T]:
         return self
 
     async def __anext__(self) -> T:
+        items = self._items
         while True:
-            with self._lock:
-                raw = self._items.popleft() if self._items else None
-                if raw is None:
-                    self._wake_pending = False
-                    self._wake.clear()
-            if raw is None:
+            try:
+                key, payload, encoding, received = items.popleft()
+            except IndexError:
                 if self._closed:
-                    raise StopAsyncIteration
-                await self._wake.wait()
+                    raise StopAsyncIteration from None
+                # Every sample queued from here on is followed by a wake-up (`LoopWakeup`).
+                waiter = self._loop.create_future()
+                self._waiters.append(waiter)
+                try:
+                    if not items:
+                        await waiter
+                finally:
+                    self._waiters.remove(waiter)
                 continue
-            if self._typed and not self._node.own_key(self.key_expr, raw.key):
+            # What `Node.own_key` and `codec.decode` do, the common case inline: this runs per sample.
+            if self._type is None:
+                return RawSample(key, payload, encoding, received)  # type: ignore[return-value]
+            if "*" in key and not self._node.own_key(self.key_expr, key):
                 self.rejected += 1
                 continue
+            if encoding is codec.MSGPACK:  # what every service sends (`_on_sample`)
+                try:
+                    return self._msgpack.decode(payload)  # type: ignore[union-attr]
+                except (msgspec.DecodeError, UnicodeDecodeError):
+                    pass  # codec.decode says what is wrong (an empty payload is an empty map)
             try:
-                return self._decode(raw)
+                return codec.decode(payload, encoding, self._type, key)
             except BadPayload as exc:
                 self.rejected += 1
                 self._warn.warning(self._kind, "dropped: %s", exc)
 
+    def _woken(self) -> None:  # the loop, woken by our reader thread (or closing)
+        for waiter in self._waiters:
+            if not waiter.done():
+                waiter.set_result(None)
+
     def pending(self) -> int:
         """Samples queued and not yet read."""
-        with self._lock:
-            return len(self._items)
+        return len(self._items)
 
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self._sub.undeclare()
+            with contextlib.suppress(zenoh.ZError):  # its session is closed already
+                self._sub.undeclare()
             join_reader(self._reader, self._node.log)
-            self._wake.set()
+            if not self._reader.is_alive():  # else its pipe stays open: the thread may still write
+                self._wakeup.close()
+            self._woken()
 
 
 class Batches(Generic[T]):
@@ -251,7 +337,7 @@ class Batches(Generic[T]):
     deadlines; a late one is not followed by a burst.
     """
 
-    def __init__(self, node: Node, key_expr: str, decode: Callable[[RawSample], T], *,
+    def __init__(self, node: Node, key_expr: str, decode: Callable[[bytes, str, str], T], *,
                  period: float, maxsize: int) -> None:
         self.key_expr = key_expr
         self.period = period
@@ -282,12 +368,12 @@ class Batches(Generic[T]):
         """The messages that arrived since the last list, now, without waiting."""
         batch: list[T] = []
         while (sample := self._sub.try_recv()) is not None:
-            raw = RawSample(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), 0.0)
-            if not self._node.own_key(self.key_expr, raw.key):
+            key = str(sample.key_expr)
+            if not self._node.own_key(self.key_expr, key):
                 self.rejected += 1
                 continue
             try:
-                batch.append(self._decode(raw))
+                batch.append(self._decode(sample.payload.to_bytes(), str(sample.encoding), key))
             except BadPayload as exc:
                 self.rejected += 1
                 self._warn.warning(self._kind, "dropped: %s", exc)
@@ -306,7 +392,7 @@ class Latest(Generic[T]):
     speeds, at 100 Hz, shown five times a second): Zenoh keeps the newest sample in a ring of
     one, and no Python runs per sample; `get` decodes only a sample that is new."""
 
-    def __init__(self, node: Node, key_expr: str, decode: Callable[[RawSample], T]) -> None:
+    def __init__(self, node: Node, key_expr: str, decode: Callable[[bytes, str, str], T]) -> None:
         self.key_expr = key_expr
         self.value: T | None = None
         """The newest message `get` has seen (None until one came)."""
@@ -320,12 +406,12 @@ class Latest(Generic[T]):
         """The newest message that came, or None if none came yet."""
         sample = self._sub.try_recv()
         if sample is not None:
-            raw = RawSample(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), 0.0)
-            if not self._node.own_key(self.key_expr, raw.key):
+            key = str(sample.key_expr)
+            if not self._node.own_key(self.key_expr, key):
                 self.rejected += 1
             else:
                 try:
-                    self.value = self._decode(raw)
+                    self.value = self._decode(sample.payload.to_bytes(), str(sample.encoding), key)
                 except BadPayload as exc:
                     self.rejected += 1
                     self._warn.warning(self._kind, "dropped: %s", exc)
@@ -365,11 +451,20 @@ class Publisher(Generic[T]):
         self._pub.put(codec.encode(message))
 
 
-def _decoder(topic: Topic) -> Callable[[RawSample], Any]:
+def _decoder(topic: Topic) -> Callable[[bytes, str, str], Any]:
+    """``decode(payload, encoding, key)`` into ``topic``'s message, as `codec.decode` does; a
+    MessagePack payload (what every service sends) goes straight to msgspec, and only one that
+    fails goes through `codec.decode`, which says what is wrong (`BadPayload`)."""
     type_ = topic.type
+    msgpack = msgspec.msgpack.Decoder(type_)
 
-    def decode(raw: RawSample) -> Any:
-        return codec.decode(raw.payload, raw.encoding, type_, raw.key)
+    def decode(payload: bytes, encoding: str, key: str) -> Any:
+        if encoding == codec.MSGPACK:
+            try:
+                return msgpack.decode(payload)
+            except (msgspec.DecodeError, UnicodeDecodeError):
+                pass  # an empty payload is an empty map, and the others get their line: codec.decode
+        return codec.decode(payload, encoding, type_, key)
 
     return decode
 
@@ -482,7 +577,7 @@ class Node:
         """Typed messages of ``topic``. Default policy: fifo for commands, latest for state."""
         if latest is None:
             latest = topic.kind == "out"
-        sub: Subscription[Any] = Subscription(self, keys.key(robot or self.robot, topic), _decoder(topic),
+        sub: Subscription[Any] = Subscription(self, keys.key(robot or self.robot, topic), topic.type,
                                               latest=latest, maxsize=maxsize)
         self._closables.append(sub)
         return sub
@@ -503,8 +598,7 @@ class Node:
 
     def subscribe_raw(self, key_expr: str, *, maxsize: int = 1024) -> Subscription[Any]:
         """Undecoded samples of any key expression (wildcards allowed), in order."""
-        sub: Subscription[Any] = Subscription(self, key_expr, lambda raw: raw, latest=False, maxsize=maxsize,
-                                              typed=False)
+        sub: Subscription[Any] = Subscription(self, key_expr, None, latest=False, maxsize=maxsize)
         self._closables.append(sub)
         return sub
 

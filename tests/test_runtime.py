@@ -278,3 +278,133 @@ async def test_latest_gives_the_newest_message_when_asked(robot: Robot) -> None:
                       encoding=codec.MSGPACK)
         await wait_for(lambda: latest.get() is not None and latest.rejected == 2, timeout=10)
         assert latest.value.stamp == 49
+
+
+SERVICE_SCRIPT = """
+import sys
+from icefloe.runtime import Node, run
+from icefloe.schemas import keys
+
+async def main(config):
+    async with Node("reader", config) as node:
+        poses, wheels = node.subscribe(keys.ODOM_POSE, latest=False), node.subscribe(keys.WHEELS)
+        async for _ in poses:
+            print("receiving", flush=True)
+            break
+        async for _ in wheels:
+            pass
+
+run(main)
+"""
+
+
+async def test_a_service_ends_cleanly_on_sigint_while_samples_stream_in(robot: Robot, tmp_path) -> None:
+    """SIGINT while its reader threads hand it samples as fast as they come: the service exits 0,
+    with no traceback and no abort ("FATAL: exception not rethrown", exit -6)."""
+    import signal
+    import subprocess
+    import sys
+
+    script = tmp_path / "service.py"
+    script.write_text(SERVICE_SCRIPT)
+    async with robot.node("streamer") as streamer:
+        pose, wheels = streamer.publisher(keys.ODOM_POSE), streamer.publisher(keys.WHEELS)
+        running = True
+
+        async def stream() -> None:
+            while running:
+                for _ in range(50):
+                    pose.put(m.Pose(stamp=1, x=0.0, y=0.0, theta=0.0))
+                    wheels.put(m.Wheels(stamp=1, ticks_left=1, ticks_right=1, speed_left=0.0, speed_right=0.0))
+                await asyncio.sleep(0)
+
+        flood = asyncio.create_task(stream())
+        try:
+            for _ in range(3):
+                proc = subprocess.Popen([sys.executable, str(script), "--config", str(robot.config_path)],
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                try:
+                    line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 60)
+                    assert line.strip() == "receiving", proc.stderr.read()[-3000:] if proc.poll() is not None else line
+                    proc.send_signal(signal.SIGINT)
+                    _, err = await asyncio.to_thread(proc.communicate, timeout=60)
+                finally:
+                    if proc.poll() is None:
+                        proc.kill()
+                        proc.wait()
+                assert proc.returncode == 0, err[-3000:]
+                assert "FATAL" not in err and "Traceback" not in err, err[-3000:]
+        finally:
+            running = False
+            await flood
+
+
+def _wake_storm(loop: asyncio.AbstractEventLoop, count: int = 20_000) -> tuple[list[int], int]:
+    """A thread queues ``count`` items as fast as it can, signalling a `LoopWakeup` after each;
+    the loop takes them, waiting for a wake-up whenever the queue is empty. A lost wake-up hangs
+    the loop (the wait times out). Returns what the loop took, and how often it was woken."""
+    import threading
+    from collections import deque
+
+    from icefloe.runtime import LoopWakeup
+
+    async def take() -> tuple[list[int], int]:
+        items: deque[int] = deque()
+        woken = asyncio.Event()
+        calls = 0
+
+        def on_wake() -> None:
+            nonlocal calls
+            calls += 1
+            woken.set()
+
+        wakeup = LoopWakeup(asyncio.get_running_loop(), on_wake)
+
+        def produce() -> None:
+            for i in range(count):
+                items.append(i)
+                wakeup.signal()
+                if i % 500 == 0:
+                    time.sleep(0.001)  # let the loop catch up and wait now and then
+
+        producer = threading.Thread(target=produce)
+        producer.start()
+        got: list[int] = []
+        try:
+            while len(got) < count:
+                while items:
+                    got.append(items.popleft())
+                woken.clear()
+                if len(got) < count and not items:
+                    await asyncio.wait_for(woken.wait(), 30)
+        finally:
+            producer.join()
+            wakeup.close()
+        return got, calls
+
+    return loop.run_until_complete(take())
+
+
+def test_a_loop_wakeup_misses_no_sample_and_wakes_once_for_many() -> None:
+    loop = asyncio.new_event_loop()
+    try:
+        got, calls = _wake_storm(loop)
+    finally:
+        loop.close()
+    assert got == list(range(20_000))
+    assert calls < 20_000, "samples that came while the loop had not looked share a wake-up"
+
+
+def test_a_loop_wakeup_works_on_a_loop_that_watches_no_descriptors() -> None:
+    """Windows' proactor loop has no add_reader: `LoopWakeup` falls back to call_soon_threadsafe."""
+
+    class NoReaders(asyncio.SelectorEventLoop):
+        def add_reader(self, *args: object) -> None:
+            raise NotImplementedError
+
+    loop = NoReaders()
+    try:
+        got, _ = _wake_storm(loop, 5_000)
+    finally:
+        loop.close()
+    assert got == list(range(5_000))
