@@ -58,6 +58,8 @@ PERIOD = 0.1
 """Re-send the twist this often, s: the robot stops by itself 0.5 s after the last command."""
 MAX_DISTANCE = 5.0
 """Longest drive we accept, m."""
+WHEELS_WAIT = 5.0
+"""How long a request waits for the first encoder reading, s."""
 
 log = logging.getLogger("forward")
 
@@ -179,6 +181,7 @@ def main() -> None:
 
     latest: dict[str, Any] = {}
     lock = threading.Lock()
+    have_wheels = threading.Event()
     requests: queue.Queue[float] = queue.Queue()
 
     def on_wheels(sample: zenoh.Sample) -> None:  # Zenoh thread: store and return
@@ -189,6 +192,7 @@ def main() -> None:
             return
         with lock:
             latest["wheels"] = wheels
+        have_wheels.set()
 
     def on_request(sample: zenoh.Sample) -> None:  # Zenoh thread
         try:
@@ -226,11 +230,13 @@ def main() -> None:
             distance = requests.get(timeout=0.2)
         except queue.Empty:
             continue
-        with lock:
-            start = latest.get("wheels")
-        if start is None:
-            log.warning("no %s/hw/wheels yet: is hwbridge running?", prefix)
+        # A request may come before the first encoder reading (we, or hwbridge, just started):
+        # wait a moment for one rather than drop the request.
+        if not have_wheels.wait(WHEELS_WAIT):
+            log.warning("no %s/hw/wheels within %g s: is hwbridge running?", prefix, WHEELS_WAIT)
             continue
+        with lock:
+            start = latest["wheels"]
         log.info("driving %.3f m", distance)
         while (left := abs(distance) - abs(travelled(start))) > 0 and not stopping.is_set():
             speed = SPEED if left > CREEP_DISTANCE else CREEP

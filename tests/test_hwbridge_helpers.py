@@ -47,11 +47,14 @@ async def driving(node: Node, v: float, w: float = 0.0, rate_hz: float = 20.0):
 
     async def loop() -> None:
         while True:
+            # The time before the put: a busy machine may let hwbridge receive the command before
+            # put() returns to us, and the deadman counts from its receipt.
+            wall_ns = time.time_ns()
             pub.put(m.Twist(v=v, w=w))
             if sent["count"]:
                 sent["max_gap"] = max(sent["max_gap"], time.monotonic() - sent["last"])
             sent["last"] = time.monotonic()
-            sent["last_wall_ns"] = time.time_ns()
+            sent["last_wall_ns"] = wall_ns
             sent["count"] += 1
             await asyncio.sleep(1.0 / rate_hz)
 

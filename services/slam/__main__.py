@@ -32,7 +32,9 @@ async def main(config: RobotConfig) -> None:
                       node.key(keys.SLAM_POSE), node.key(keys.SLAM_MAP))
 
         async def odometry() -> None:
-            async for pose in node.subscribe(keys.ODOM_POSE):
+            # Every pose, not only the newest: on a busy robot the loop may fall behind, and a
+            # late camera frame is placed on this history (a map error, unlike a pose error, stays).
+            async for pose in node.subscribe(keys.ODOM_POSE, latest=False, maxsize=64):
                 slam.on_odometry(pose)
 
         async def landmarks() -> None:
