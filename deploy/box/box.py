@@ -91,10 +91,11 @@ def cached_root(cache: Path, arch: str) -> Path:
     return cache / f"{SUITE}-{arch}"
 
 
-def emulation(arch: str) -> None:
+def emulation(arch: str, setuid: bool = False) -> None:
     """Make sure this machine runs ``arch``'s programs if the box needs qemu for them: binfmt_misc
     mounted, qemu's entry enabled with the F flag (the interpreter opened when registered, so it
-    runs in a chroot and in the box, where /usr/libexec/qemu-binfmt does not exist)."""
+    runs in a chroot and in the box, where /usr/libexec/qemu-binfmt does not exist). ``setuid``:
+    a booted box runs sudo, which needs the C flag too (docs/box.md: Debian registers qemu without it)."""
     qemu = EMULATED.get(arch)
     if qemu is None or os.uname().machine == qemu:
         return
@@ -115,6 +116,10 @@ def emulation(arch: str) -> None:
         raise BoxError(f"{entry} is not enabled with the F flag ({' '.join(lines[:1])}, flags{flags or ' none'}): "
                        f"a box cannot run {arch} programs; qemu-user-static's own entry has it "
                        f"(update-binfmts --enable qemu-{qemu})")
+    if setuid and "C" not in flags:
+        raise BoxError(f"{entry} has no C flag (flags{flags}): in an {arch} box sudo, a setuid program, would run "
+                       f"without root's rights and the install as pi fails; docs/box.md says how to register "
+                       f"qemu-{qemu} with it for the box's run, and why Debian does not")
 
 
 def slower(state: State) -> float:
@@ -400,6 +405,13 @@ class Supervisor:
     def stop(self) -> None:
         self.stopping = True
         if self.nspawn is not None and self.nspawn.poll() is None:
+            qemu = EMULATED.get(self.state.read().get("arch", ""))
+            if qemu and os.uname().machine != qemu:
+                # nspawn asks for a power-off with SIGRTMIN+4, but qemu-user shifts the real-time signals
+                # it hands its guest (it keeps some for itself): the box's systemd saw rescue mode's.
+                with contextlib.suppress(BoxError, subprocess.TimeoutExpired):
+                    if inside(self.state, "systemctl poweroff --no-block", capture=True, timeout=120).returncode == 0:
+                        return
             self.nspawn.terminate()  # nspawn asks the box's systemd to power off
 
     def _accept(self, server: socket.socket) -> None:
@@ -515,6 +527,7 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
     if busy:
         raise BoxError(f"port {', '.join(map(str, busy))} on this machine is in use, and the box shares "
                        f"this machine's network: stop what uses it (a robot running here?) and try again")
+    emulation(args.arch, setuid=True)
     lower = build(args.cache, args.arch)
     wheelhouse(args.repo, wheels_dir(args.cache, args.arch), args.arch)
     shutil.rmtree(state.dir, ignore_errors=True)
