@@ -91,13 +91,19 @@ def cached_root(cache: Path, arch: str) -> Path:
     return cache / f"{SUITE}-{arch}"
 
 
+def emulated(arch: str) -> str:
+    """qemu's name of ``arch`` if this machine runs its programs under emulation, else ''."""
+    qemu = EMULATED.get(arch, "")
+    return qemu if qemu and os.uname().machine != qemu else ""
+
+
 def emulation(arch: str, setuid: bool = False) -> None:
     """Make sure this machine runs ``arch``'s programs if the box needs qemu for them: binfmt_misc
     mounted, qemu's entry enabled with the F flag (the interpreter opened when registered, so it
     runs in a chroot and in the box, where /usr/libexec/qemu-binfmt does not exist). ``setuid``:
     a booted box runs sudo, which needs the C flag too (docs/box.md: Debian registers qemu without it)."""
-    qemu = EMULATED.get(arch)
-    if qemu is None or os.uname().machine == qemu:
+    qemu = emulated(arch)
+    if not qemu:
         return
     misc = Path("/proc/sys/fs/binfmt_misc")
     if not (misc / "status").exists():
@@ -405,8 +411,7 @@ class Supervisor:
     def stop(self) -> None:
         self.stopping = True
         if self.nspawn is not None and self.nspawn.poll() is None:
-            qemu = EMULATED.get(self.state.read().get("arch", ""))
-            if qemu and os.uname().machine != qemu:
+            if emulated(self.state.read().get("arch", "")):
                 # nspawn asks for a power-off with SIGRTMIN+4, but qemu-user shifts the real-time signals
                 # it hands its guest (it keeps some for itself): the box's systemd saw rescue mode's.
                 with contextlib.suppress(BoxError, subprocess.TimeoutExpired):
@@ -545,6 +550,14 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
     # Raspberry Pi OS names the machine in /etc/hosts (sudo looks its name up); so does the box
     (state.root / "etc/hosts").write_text(f"127.0.0.1\tlocalhost\n::1\t\tlocalhost ip6-localhost ip6-loopback\n"
                                           f"127.0.1.1\traspberrypi {args.name}\n")
+    if emulated(args.arch):
+        # qemu-user lacks the mount calls systemd sets a unit's credentials up with (EINVAL): Debian's
+        # tmpfiles and sysusers units, which load optional ones, fail at boot, and with them every
+        # tmpfiles.d folder (the robot's /run/icefloe). Box infrastructure: they load none here.
+        for unit in ("systemd-tmpfiles-setup", "systemd-tmpfiles-setup-dev", "systemd-sysusers"):
+            dropin = state.root / f"etc/systemd/system/{unit}.service.d"
+            dropin.mkdir(parents=True, exist_ok=True)
+            (dropin / "icefloe-box-qemu.conf").write_text("[Service]\nLoadCredential=\n")
     bundle = state.root / "var/tmp/icefloe.bundle"
     r = subprocess.run(["git", "-C", str(args.repo), "bundle", "create", str(bundle), args.rev],
                        capture_output=True, text=True)
