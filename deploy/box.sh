@@ -7,7 +7,8 @@
 #   sudo ./deploy/box.sh board pose   the simulator's truth (x y theta)
 #   sudo ./deploy/box.sh down         power the box off and throw it away
 #
-# `./deploy/box.sh --help` lists every command. Needs root, debootstrap and systemd-container.
+# `./deploy/box.sh --help` lists every command. Needs root, debootstrap and systemd-container;
+# `--arch arm64` (emulated: slow) also qemu-user-static and binfmt-support.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . deploy/setup.sh
@@ -17,5 +18,8 @@ if [ "$(id -u)" != 0 ]; then
 fi
 ensure_apt debootstrap debootstrap
 ensure_apt systemd-nspawn systemd-container
+case " $* " in   # an arm64 box runs its programs under qemu's user emulation (binfmt_misc)
+    *" --arch arm64 "*|*" --arch=arm64 "*) ensure_apt qemu-aarch64-static qemu-user-static binfmt-support ;;
+esac
 ensure_venv viz   # this machine's side: the board model, and the laptop's icefloe that drives the box
 exec .venv/bin/python deploy/box/box.py "$@"

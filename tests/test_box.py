@@ -6,6 +6,9 @@ One box for the whole file (it boots twice: once fresh, once after the install);
 order, each on the state the one before left (issue 25's checks, numbered as there). Needs root,
 systemd-nspawn and debootstrap (tests/run.sh installs them), and this machine's ports 7447 and 8080
 (the box shares its network). The first run builds the cached root (~6 min); later ones reuse it.
+
+ICEFLOE_BOX_ARCH=arm64 runs the same checks in an arm64 box (qemu-user-static; on request only, far
+slower: every wait below is SLOW times longer; docs/box.md has a measured run).
 """
 
 from __future__ import annotations
@@ -39,6 +42,9 @@ UNITS = ["icefloe-router.service", "icefloe-hwbridge.service",
 PORTS = (7447, 8080)
 ROUTER = "tcp/127.0.0.1:7447"
 WEBAPI = "http://127.0.0.1:8080"
+ARCH = os.environ.get("ICEFLOE_BOX_ARCH", "amd64")
+SLOW = {"amd64": 1, "arm64": 6}.get(ARCH, 1)
+"""Every timeout of this file is this many times longer in a box whose programs qemu emulates."""
 T = TypeVar("T")
 
 
@@ -50,13 +56,15 @@ def _why_not() -> str:
                 "ICEFLOE_BOX=1 .venv/bin/pytest tests/test_box.py")
     if os.geteuid() != 0:
         return "needs root (systemd-nspawn boots the box)"
+    if ARCH not in ("amd64", "arm64"):
+        return f"ICEFLOE_BOX_ARCH={ARCH}: the box is amd64 or arm64"
     for tool, package in (("systemd-nspawn", "systemd-container"), ("debootstrap", "debootstrap")):
         if not shutil.which(tool):
             return f"needs {tool} (apt-get install {package}; tests/run.sh does)"
     return ""
 
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(2400),
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(2400 * SLOW),
               pytest.mark.skipif(bool(_why_not()), reason=_why_not() or "-")]
 
 
@@ -78,8 +86,8 @@ class Box:
         self.credentials = folder / f"{ROBOT}.credentials"
 
     def sh(self, *args: str, timeout: float = 900, check: bool = True) -> subprocess.CompletedProcess[str]:
-        r = subprocess.run([str(BOX), "--dir", str(self.dir), "--name", "icefloe-test", *args],
-                           capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+        r = subprocess.run([str(BOX), "--dir", str(self.dir), "--name", "icefloe-test", "--arch", ARCH, *args],
+                           capture_output=True, text=True, timeout=timeout * SLOW, cwd=ROOT)
         if check and r.returncode != 0:
             raise AssertionError(f"deploy/box.sh {' '.join(args)} exited {r.returncode}:\n{r.stdout}\n{r.stderr}")
         return r
@@ -108,6 +116,7 @@ class Box:
 
 
 def wait_for(what: str, condition: Callable[[], T], timeout: float, every: float = 1.0) -> T:
+    timeout *= SLOW
     deadline = time.monotonic() + timeout
     last = None
     while time.monotonic() < deadline:
@@ -206,7 +215,8 @@ def test_2_after_a_reboot_every_unit_runs_as_icefloe(box: Box) -> None:
 
 
 def _status(box: Box, *extra: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([str(ICEFLOE), "status", *extra], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    return subprocess.run([str(ICEFLOE), "status", *extra], capture_output=True, text=True, timeout=60 * SLOW,
+                          cwd=ROOT)
 
 
 def _drive(box: Box, count: int, *credentials: str) -> float:
@@ -215,10 +225,18 @@ def _drive(box: Box, count: int, *credentials: str) -> float:
     stop 0.5 s after the last: (count - 1) * 0.1 s + 0.5 s (46 commands: 5 s, 1 m)."""
     x0, y0, _ = box.pose()
     subprocess.run([str(ICEFLOE), "pub", "cmd/twist", '{"v": 0.2, "w": 0.0}', "--rate", "10", "-n", str(count),
-                    "--robot", ROBOT, *credentials], capture_output=True, text=True, timeout=120, cwd=ROOT)
+                    "--robot", ROBOT, *credentials], capture_output=True, text=True, timeout=120 * SLOW, cwd=ROOT)
     time.sleep(1.5)  # the deadman's stop, and standing still
-    x1, y1, _ = box.pose()
+    x1, y1, _ = wait_for("the robot standing still", lambda: _still(box), 30, 0)
     return ((x1 - x0) ** 2 + (y1 - y0) ** 2) ** 0.5
+
+
+def _still(box: Box) -> tuple[float, float, float] | None:
+    """The simulator's truth if it did not change in half a second (an emulated hwbridge stops later)."""
+    before = box.pose()
+    time.sleep(0.5)
+    after = box.pose()
+    return after if max(abs(a - b) for a, b in zip(before, after, strict=True)) < 1e-6 else None
 
 
 def test_3_from_outside_with_the_owners_credentials(box: Box) -> None:

@@ -66,6 +66,15 @@ TIOCGPTN, TIOCSPTLCK = 0x80045430, 0x40045431
 REBOOT_STATUS = 133
 """systemd-nspawn's exit status when the box's systemd asked for a reboot."""
 PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
+EMULATED = {"arm64": "aarch64"}
+"""A box of this architecture runs its programs under qemu's user emulation (binfmt_misc: qemu-<name>)."""
+SLOWER = {"arm64": 10.0}
+"""How much longer the box's own waits (boot, reboot) are under emulation (docs/box.md: measured)."""
+PIP_TARGET = {"arm64": [*(f"--platform=manylinux_2_{m}_aarch64" for m in range(36, 16, -1)),
+                        "--platform=manylinux2014_aarch64", "--python-version=3.11", "--implementation=cp",
+                        "--abi=cp311", "--only-binary=:all:"]}
+"""pip download's target for a foreign box: bookworm's Python 3.11 and glibc 2.36 (pip does not widen
+manylinux_2_36 to the older glibc tags itself), wheels only (nothing is built for another machine)."""
 
 
 def say(msg: str) -> None:
@@ -82,8 +91,55 @@ def cached_root(cache: Path, arch: str) -> Path:
     return cache / f"{SUITE}-{arch}"
 
 
+def emulated(arch: str) -> str:
+    """qemu's name of ``arch`` if this machine runs its programs under emulation, else ''."""
+    qemu = EMULATED.get(arch, "")
+    return qemu if qemu and os.uname().machine != qemu else ""
+
+
+def emulation(arch: str, setuid: bool = False) -> None:
+    """Make sure this machine runs ``arch``'s programs if the box needs qemu for them: binfmt_misc
+    mounted, qemu's entry enabled with the F flag (the interpreter opened when registered, so it
+    runs in a chroot and in the box, where /usr/libexec/qemu-binfmt does not exist). ``setuid``:
+    a booted box runs sudo, which needs the C flag too (docs/box.md: Debian registers qemu without it)."""
+    qemu = emulated(arch)
+    if not qemu:
+        return
+    misc = Path("/proc/sys/fs/binfmt_misc")
+    if not (misc / "status").exists():
+        subprocess.run(["mount", "-t", "binfmt_misc", "binfmt_misc", str(misc)], capture_output=True)
+    entry = misc / f"qemu-{qemu}"
+    if not entry.exists() and shutil.which("update-binfmts"):
+        subprocess.run(["update-binfmts", "--enable", f"qemu-{qemu}"], capture_output=True)
+    try:
+        lines = entry.read_text().splitlines()
+    except OSError:
+        raise BoxError(f"this machine cannot run {arch} programs: no binfmt_misc entry {entry} "
+                       f"(apt-get install qemu-user-static binfmt-support; update-binfmts --enable qemu-{qemu})"
+                       ) from None
+    flags = next((line.split(":", 1)[1] for line in lines if line.startswith("flags:")), "")
+    if lines[:1] != ["enabled"] or "F" not in flags:
+        raise BoxError(f"{entry} is not enabled with the F flag ({' '.join(lines[:1])}, flags{flags or ' none'}): "
+                       f"a box cannot run {arch} programs; qemu-user-static's own entry has it "
+                       f"(update-binfmts --enable qemu-{qemu})")
+    if setuid and "C" not in flags:
+        raise BoxError(f"{entry} has no C flag (flags{flags}): in an {arch} box sudo, a setuid program, would run "
+                       f"without root's rights and the install as pi fails; docs/box.md says how to register "
+                       f"qemu-{qemu} with it for the box's run, and why Debian does not")
+
+
+def slower(state: State) -> float:
+    return SLOWER.get(state.read().get("arch", ""), 1.0)
+
+
+def wheels_dir(cache: Path, arch: str) -> Path:
+    """The wheelhouse of a box of ``arch`` (each its own: an arm64 box gets no amd64 wheels)."""
+    return cache / ("wheels" if arch == "amd64" else f"wheels-{arch}")
+
+
 def build(cache: Path, arch: str, rebuild: bool = False) -> Path:
     """The cached root for ``arch``, made with debootstrap if it is missing (a few minutes, once)."""
+    emulation(arch)
     root = cached_root(cache, arch)
     if (root / READY).exists() and not rebuild:
         return root
@@ -120,7 +176,7 @@ def build(cache: Path, arch: str, rebuild: bool = False) -> Path:
     return root
 
 
-def wheelhouse(repo: Path, folder: Path) -> None:
+def wheelhouse(repo: Path, folder: Path, arch: str = "amd64") -> None:
     """The wheels of icefloe's dependencies (with `EXTRAS`), downloaded here once per pyproject.toml.
 
     pip's own HTTP cache (bound as well) saves nothing where a proxy marks PyPI's answers
@@ -139,7 +195,8 @@ def wheelhouse(repo: Path, folder: Path) -> None:
               "setuptools>=69", "pip", "wheel"]
     folder.mkdir(parents=True, exist_ok=True)
     say(f"downloading the wheels icefloe needs into {folder} (once per pyproject.toml)")
-    r = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--dest", str(folder), *wanted],
+    r = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--dest", str(folder),
+                        *PIP_TARGET.get(arch, []), *wanted],
                        capture_output=True, text=True)
     if r.returncode != 0:  # not fatal: pip in the box downloads what is missing
         say(f"could not fill the wheelhouse: {r.stderr.strip().splitlines()[-1:]}")
@@ -281,7 +338,7 @@ def nspawn_command(state: State, cache: Path, name: str) -> list[str]:
             # cycle its memory). The services, run as icefloe, do not get the capability itself.
             "--capability=CAP_IPC_LOCK",
             f"--bind={cache / 'pip'}:{BOX_PIP}", f"--bind={cache / 'apt'}:{BOX_APT}",
-            f"--bind-ro={cache / 'wheels'}:{BOX_WHEELS}"]
+            f"--bind-ro={wheels_dir(cache, state.read().get('arch', 'amd64'))}:{BOX_WHEELS}"]
 
 
 def container_init(nspawn_pid: int, timeout: float = 60.0) -> int:
@@ -338,7 +395,7 @@ class Supervisor:
             self.nspawn = subprocess.Popen(nspawn_command(self.state, self.cache, self.name),
                                            stdin=subprocess.DEVNULL, stdout=console, stderr=console)
             try:
-                leader = container_init(self.nspawn.pid)
+                leader = container_init(self.nspawn.pid, 60 * slower(self.state))
                 self.boots += 1
                 self.state.write(leader=leader, boots=self.boots, running=True, nspawn=self.nspawn.pid)
                 # The box's /dev is made at each boot: wait for it, then plug the board in.
@@ -354,6 +411,12 @@ class Supervisor:
     def stop(self) -> None:
         self.stopping = True
         if self.nspawn is not None and self.nspawn.poll() is None:
+            if emulated(self.state.read().get("arch", "")):
+                # nspawn asks for a power-off with SIGRTMIN+4, but qemu-user shifts the real-time signals
+                # it hands its guest (it keeps some for itself): the box's systemd saw rescue mode's.
+                with contextlib.suppress(BoxError, subprocess.TimeoutExpired):
+                    if inside(self.state, "systemctl poweroff --no-block", capture=True, timeout=120).returncode == 0:
+                        return
             self.nspawn.terminate()  # nspawn asks the box's systemd to power off
 
     def _accept(self, server: socket.socket) -> None:
@@ -413,6 +476,7 @@ def inside(state: State, command: str, user: str = "root", check: bool = False,
 
 def wait_booted(state: State, timeout: float = 120.0) -> None:
     """Until the box's systemd has finished starting (running, or degraded: a unit failed)."""
+    timeout *= slower(state)
     deadline = time.monotonic() + timeout
     last = ""
     while time.monotonic() < deadline:
@@ -421,7 +485,7 @@ def wait_booted(state: State, timeout: float = 120.0) -> None:
             raise BoxError(f"the box stopped (status {info.get('status')}): see {state.console}")
         if info.get("leader"):
             with contextlib.suppress(BoxError, subprocess.TimeoutExpired):
-                r = inside(state, "systemctl is-system-running", capture=True, timeout=20)
+                r = inside(state, "systemctl is-system-running", capture=True, timeout=20 * slower(state))
                 last = r.stdout.strip()
                 if last in ("running", "degraded"):
                     return
@@ -468,8 +532,9 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
     if busy:
         raise BoxError(f"port {', '.join(map(str, busy))} on this machine is in use, and the box shares "
                        f"this machine's network: stop what uses it (a robot running here?) and try again")
+    emulation(args.arch, setuid=True)
     lower = build(args.cache, args.arch)
-    wheelhouse(args.repo, args.cache / "wheels")
+    wheelhouse(args.repo, wheels_dir(args.cache, args.arch), args.arch)
     shutil.rmtree(state.dir, ignore_errors=True)
     state.dir.mkdir(parents=True, mode=0o700)
     for cache in ("pip", "apt", "wheels"):
@@ -485,6 +550,14 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
     # Raspberry Pi OS names the machine in /etc/hosts (sudo looks its name up); so does the box
     (state.root / "etc/hosts").write_text(f"127.0.0.1\tlocalhost\n::1\t\tlocalhost ip6-localhost ip6-loopback\n"
                                           f"127.0.1.1\traspberrypi {args.name}\n")
+    if emulated(args.arch):
+        # qemu-user lacks the mount calls systemd sets a unit's credentials up with (EINVAL): Debian's
+        # tmpfiles and sysusers units, which load optional ones, fail at boot, and with them every
+        # tmpfiles.d folder (the robot's /run/icefloe). Box infrastructure: they load none here.
+        for unit in ("systemd-tmpfiles-setup", "systemd-tmpfiles-setup-dev", "systemd-sysusers"):
+            dropin = state.root / f"etc/systemd/system/{unit}.service.d"
+            dropin.mkdir(parents=True, exist_ok=True)
+            (dropin / "icefloe-box-qemu.conf").write_text("[Service]\nLoadCredential=\n")
     bundle = state.root / "var/tmp/icefloe.bundle"
     r = subprocess.run(["git", "-C", str(args.repo), "bundle", "create", str(bundle), args.rev],
                        capture_output=True, text=True)
@@ -498,7 +571,7 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
     subprocess.Popen([sys.executable, __file__, "--dir", str(state.dir), "--cache", str(args.cache),
                       "--name", args.name, "serve"],
                      stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True, cwd=REPO)
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 60 * SLOWER.get(args.arch, 1.0)
     while not state.read().get("leader"):
         if time.monotonic() > deadline:
             raise BoxError(f"the box did not start: see {state.dir / 'supervisor.log'}")
@@ -558,11 +631,11 @@ def cmd_down(state: State) -> int:
     if info.get("running"):
         with contextlib.suppress(BoxError):
             ask(state, "stop")
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 60 * slower(state)
         while state.read().get("running") and time.monotonic() < deadline:
             time.sleep(0.2)
         if state.read().get("running"):
-            raise BoxError(f"the box did not power off within 60 s: see {state.console}")
+            raise BoxError(f"the box did not power off within {60 * slower(state):.0f} s: see {state.console}")
     if os.path.ismount(state.root):
         subprocess.run(["umount", str(state.root)], check=False)
     shutil.rmtree(state.dir, ignore_errors=True)
@@ -573,7 +646,7 @@ def cmd_down(state: State) -> int:
 def cmd_reboot(state: State) -> int:
     boots = state.read().get("boots", 0)
     inside(state, "systemctl reboot", capture=True)
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 120 * slower(state)
     while state.read().get("boots", 0) == boots:
         if time.monotonic() > deadline or state.read().get("running") is False:
             raise BoxError(f"the box did not come back from the reboot: see {state.console}")
