@@ -695,7 +695,7 @@ def main(argv: list[str] | None = None) -> int:
         match args.command:
             case "build":
                 build(args.cache, args.arch, args.rebuild)
-                wheelhouse(REPO, args.cache / "wheels")
+                wheelhouse(REPO, wheels_dir(args.cache, args.arch), args.arch)
                 return 0
             case "serve":
                 return Supervisor(state, args.cache, args.name).serve()
