@@ -41,8 +41,9 @@ if [ "$box" = 1 ] && [ "$(id -u)" = 0 ]; then
 fi
 echo "== pytest"
 # Two workers, a test file each at a time (a file's tests share their robot): most tests wait on real
-# service processes (2026-11-26, 2 cores: 892 tests in 14 min 10 s; with six CPU-bound processes
-# beside it, 16-19 min: docs/DEVELOPING.md). ICEFLOE_TEST_WORKERS=0: one process.
+# service processes (2026-11-26, 2 cores, fresh clone: 915 passed in 15 min 25 s with the box beside
+# them, 16 min 28 s in all: docs/box.md; with six CPU-bound processes beside it, 16-19 min:
+# docs/DEVELOPING.md). ICEFLOE_TEST_WORKERS=0: one process.
 status=0
 ICEFLOE_BOX="$( [ "$box" = 1 ] && echo 0 || echo "${ICEFLOE_BOX:-0}")" \
     .venv/bin/pytest -n "${ICEFLOE_TEST_WORKERS:-2}" --dist loadfile "$@" || status=$?
