@@ -207,3 +207,31 @@ async def wait_for(predicate: Callable[[], object], timeout: float = 10.0, inter
         if time.monotonic() > deadline:
             raise AssertionError(f"condition not met within {timeout} s")
         await asyncio.sleep(interval)
+
+
+@contextlib.asynccontextmanager
+async def flooding(robot: Robot):  # type: ignore[no-untyped-def]
+    """``odom/pose`` and ``hw/wheels`` published as fast as the loop can, far faster than any real
+    stream, while the block runs: every reader thread of a program on the robot is busy."""
+    import asyncio
+
+    from icefloe.schemas import keys
+    from icefloe.schemas import messages as m
+
+    async with robot.node("streamer") as streamer:
+        pose, wheels = streamer.publisher(keys.ODOM_POSE), streamer.publisher(keys.WHEELS)
+        running = True
+
+        async def stream() -> None:
+            while running:
+                for _ in range(50):
+                    pose.put(m.Pose(stamp=1, x=0.0, y=0.0, theta=0.0))
+                    wheels.put(m.Wheels(stamp=1, ticks_left=1, ticks_right=1, speed_left=0.0, speed_right=0.0))
+                await asyncio.sleep(0)
+
+        flood = asyncio.create_task(stream())
+        try:
+            yield
+        finally:
+            running = False
+            await flood

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import free_port
+from conftest import flooding, free_port
 from webapi_helpers import board, jpeg, wait_for
 
 from icefloe import client
@@ -234,24 +234,9 @@ async def test_a_program_exits_cleanly_while_the_bus_streams_to_it(robot, tmp_pa
 
     script = tmp_path / "exit.py"
     script.write_text(EXIT_SCRIPT)
-    async with robot.node("streamer") as streamer:
-        pose, wheels = streamer.publisher(keys.ODOM_POSE), streamer.publisher(keys.WHEELS)
-        running = True
-
-        async def stream() -> None:
-            while running:  # far faster than any real stream: every reader thread is busy at exit
-                for _ in range(50):
-                    pose.put(m.Pose(stamp=1, x=0.0, y=0.0, theta=0.0))
-                    wheels.put(m.Wheels(stamp=1, ticks_left=1, ticks_right=1, speed_left=0.0, speed_right=0.0))
-                await asyncio.sleep(0)
-
-        flood = asyncio.create_task(stream())
-        try:
-            for _ in range(8):
-                done = await asyncio.to_thread(subprocess.run, [sys.executable, str(script), str(robot.config_path)],
-                                               capture_output=True, text=True, timeout=60)
-                assert (done.returncode, done.stdout.strip()) == (0, "closed"), done.stderr[-3000:]
-                assert "FATAL" not in done.stderr, done.stderr[-3000:]
-        finally:
-            running = False
-            await flood
+    async with flooding(robot):
+        for _ in range(8):
+            done = await asyncio.to_thread(subprocess.run, [sys.executable, str(script), str(robot.config_path)],
+                                           capture_output=True, text=True, timeout=60)
+            assert (done.returncode, done.stdout.strip()) == (0, "closed"), done.stderr[-3000:]
+            assert "FATAL" not in done.stderr, done.stderr[-3000:]

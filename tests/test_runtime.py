@@ -9,7 +9,7 @@ import time
 
 import msgspec
 import pytest
-from conftest import Robot, wait_for
+from conftest import Robot, flooding, wait_for
 
 from icefloe.errors import NotReachable
 from icefloe.schemas import codec, keys
@@ -307,36 +307,21 @@ async def test_a_service_ends_cleanly_on_sigint_while_samples_stream_in(robot: R
 
     script = tmp_path / "service.py"
     script.write_text(SERVICE_SCRIPT)
-    async with robot.node("streamer") as streamer:
-        pose, wheels = streamer.publisher(keys.ODOM_POSE), streamer.publisher(keys.WHEELS)
-        running = True
-
-        async def stream() -> None:
-            while running:
-                for _ in range(50):
-                    pose.put(m.Pose(stamp=1, x=0.0, y=0.0, theta=0.0))
-                    wheels.put(m.Wheels(stamp=1, ticks_left=1, ticks_right=1, speed_left=0.0, speed_right=0.0))
-                await asyncio.sleep(0)
-
-        flood = asyncio.create_task(stream())
-        try:
-            for _ in range(3):
-                proc = subprocess.Popen([sys.executable, str(script), "--config", str(robot.config_path)],
-                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                try:
-                    line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 60)
-                    assert line.strip() == "receiving", proc.stderr.read()[-3000:] if proc.poll() is not None else line
-                    proc.send_signal(signal.SIGINT)
-                    _, err = await asyncio.to_thread(proc.communicate, timeout=60)
-                finally:
-                    if proc.poll() is None:
-                        proc.kill()
-                        proc.wait()
-                assert proc.returncode == 0, err[-3000:]
-                assert "FATAL" not in err and "Traceback" not in err, err[-3000:]
-        finally:
-            running = False
-            await flood
+    async with flooding(robot):
+        for _ in range(3):
+            proc = subprocess.Popen([sys.executable, str(script), "--config", str(robot.config_path)],
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            try:
+                line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 60)
+                assert line.strip() == "receiving", proc.stderr.read()[-3000:] if proc.poll() is not None else line
+                proc.send_signal(signal.SIGINT)
+                _, err = await asyncio.to_thread(proc.communicate, timeout=60)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+            assert proc.returncode == 0, err[-3000:]
+            assert "FATAL" not in err and "Traceback" not in err, err[-3000:]
 
 
 def _wake_storm(loop: asyncio.AbstractEventLoop, count: int = 20_000) -> tuple[list[int], int]:
