@@ -17,7 +17,6 @@ import json
 import os
 import re
 import shutil
-import socket
 import subprocess
 import time
 import urllib.error
@@ -69,13 +68,17 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(2400 * SLOW),
 
 
 def _port_busy(port: int) -> bool:
-    with socket.socket() as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(("0.0.0.0", port))
-        except OSError:
-            return True
-    return False
+    return not _box_module().port_free(port)
+
+
+def _box_module():  # type: ignore[no-untyped-def]
+    """deploy/box/box.py itself (a script, not a package): its port check is the one `up` makes."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("icefloe_box", ROOT / "deploy" / "box" / "box.py")
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    return module
 
 
 class Box:
