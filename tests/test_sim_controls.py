@@ -25,7 +25,7 @@ from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.sim.clock import SimClock
-from icefloe.sim.world import World
+from icefloe.sim.world import MOTOR_TAU, World
 
 # --------------------------------------------------------------------------- the world itself
 
@@ -134,11 +134,21 @@ async def test_place_reset_pause_from_the_cli_odometry_carries_on_and_a_stop_win
         assert (await sim_state(node)).x == paused.x and (await sim_state(node)).y == paused.y
         node.publisher(keys.STOP).put(node.command(m.Stop))
         await node.query(keys.HALT, node.command(m.Halt, rest=False), timeout=5.0)
+        # From the stop on, the board applies no duty (`mark` starts the board model's peak-duty window).
+        stopped = await node.query(keys.SIM_CONTROL, m.SimControl(action="mark"), timeout=5.0)
+        assert (stopped.duty_left, stopped.duty_right, stopped.peak_duty) == (0.0, 0.0, 0.0), stopped
         assert cli(robot, "resume").returncode == 0
         await asyncio.sleep(1.0)
         after = await sim_state(node)
         assert not after.paused
-        assert math.hypot(after.x - paused.x, after.y - paused.y) < 0.002, "moved after a stop sent while paused"
+        assert after.peak_duty == 0.0, f"duty {after.peak_duty} applied after a stop sent while paused"
+        # The frozen world kept the speed it had at the pause (on a busy machine the deadman may have
+        # stopped the drive before `pause` arrived, leaving the robot rolling out); after the resume it
+        # rolls out from that speed, unpowered: v·MOTOR_TAU, and no further.
+        rolling = max(abs(paused.speed_left), abs(paused.speed_right))
+        assert math.hypot(after.x - paused.x, after.y - paused.y) < 0.002 + rolling * MOTOR_TAU, \
+            f"moved after a stop sent while paused (rolling at {rolling:.3f} m/s when paused)"
+        assert max(abs(after.speed_left), abs(after.speed_right)) < 1e-3, after
 
         assert cli(robot, "reset").returncode == 0
         reset = await sim_state(node)
