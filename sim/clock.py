@@ -82,6 +82,11 @@ class SimClock:
         self._thread.start()
         return self
 
+    @property
+    def running(self) -> bool:
+        """The clock thread is stepping (False once `stop` ended it, or a board model raised in it)."""
+        return self._thread is not None and self._thread.is_alive()
+
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:

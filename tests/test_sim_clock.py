@@ -90,3 +90,30 @@ def test_late_steps_catch_up_then_drop_backlog() -> None:
 def test_rejects_bad_arguments() -> None:
     with pytest.raises(ValueError, match="dt and speed"):
         SimClock(World(Geometry(), seed=1), speed=0.0)
+
+
+def test_running_says_whether_the_thread_steps_and_a_raising_model_ends_it() -> None:
+    """The simulator exits when a board model raised in the clock thread (`running` False), and
+    only then: not because a process stopped with SIGSTOP saw no step for a while."""
+
+    class Breaks:
+        def tick(self, now: float) -> None:
+            if now >= 0.01:
+                raise RuntimeError("a board model broke")
+
+    world = World(Geometry())
+    clock = SimClock(world, [Breaks()])
+    assert not clock.running
+    events: list[threading.ExceptHookArgs] = []
+    hook, threading.excepthook = threading.excepthook, events.append
+    try:
+        clock.start()
+        assert clock._thread is not None
+        clock._thread.join(5.0)
+    finally:
+        threading.excepthook = hook
+    assert not clock.running and "a board model broke" in str(events[0].exc_value)
+    steady = SimClock(World(Geometry()))
+    with steady:
+        assert steady.running
+    assert not steady.running
