@@ -93,8 +93,9 @@ def test_rejects_bad_arguments() -> None:
 
 
 def test_running_says_whether_the_thread_steps_and_a_raising_model_ends_it() -> None:
-    """The simulator exits when a board model raised in the clock thread (`running` False), and
-    only then: not because a process stopped with SIGSTOP saw no step for a while."""
+    """`running` is what the simulator's truth task watches: False once a board model raised in
+    the clock thread (or `stop` ended it). The SIGSTOP case, end to end, is
+    tests/test_doctor.py::test_the_board_unplugged_is_named."""
 
     class Breaks:
         def tick(self, now: float) -> None:
