@@ -1,6 +1,6 @@
 """Hostile input against the whole simulated robot: memory, log lines and motion.
 
-    .venv/bin/python bench/hostile_input.py [--payloads 100000] [--requests 50000] [--idle 500]
+    .venv/bin/python bench/hostile_input.py [--payloads 100000] [--requests 50000] [--burst 4000] [--idle 500]
     .venv/bin/python bench/hostile_input.py --services webapi --payloads 0 --requests 150000 --steps 15
 
 Starts `icefloe up` on the simulated robot (its own port, run dir and web port), waits until
@@ -12,7 +12,9 @@ every service is alive, reads each process's RSS, then
 2. sends ``--requests`` fuzzed HTTP requests to webapi (`fuzz_requests`: over-long URLs and headers,
    bad methods, garbage bytes, bad encodings, bad bodies, bad parameters), each on its own
    connection, 16 at a time;
-3. leaves ``--idle`` keep-alive connections open and silent until webapi closes them;
+3. asks the camera ``--burst`` good queries (snapshots and small frames), 32 at a time: not
+   hostile, but a class asking for pictures at once, and what made the camera grow (`query_burst`);
+4. leaves ``--idle`` keep-alive connections open and silent until webapi closes them;
 
 and prints the RSS of every process (the router too) at each quarter of each run, the log lines
 seen on the bus ``log`` key and in the processes' output, the HTTP status codes, and how far the
@@ -39,6 +41,7 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -312,6 +315,20 @@ async def fuzz_http(host: str, port: int, count: int, seed: int, concurrency: in
 # ---------------------------------------------------------------------- the stack
 
 
+def query_burst(session: zenoh.Session, robot: str, count: int, at_once: int = 32) -> Counter[str]:
+    """``count`` good queries on the camera's ``camera/snapshot`` and ``camera/frame``, ``at_once``
+    in flight (the most a queryable answers at once): a class asking for pictures. Answers by kind."""
+    body = codec.encode(m.Stop())
+
+    def ask(i: int) -> list[str]:
+        topic = keys.SNAPSHOT if i % 2 else keys.FRAME
+        return ["ok" if r.ok is not None else r.err.payload.to_string()[-40:]
+                for r in session.get(keys.key(robot, topic), payload=body, timeout=10.0)]
+
+    with ThreadPoolExecutor(at_once) as pool:
+        return Counter(answer for answers in pool.map(ask, range(count)) for answer in answers)
+
+
 def rss_mib(pid: int) -> float:
     """Resident set size of a process, MiB (0 if it is gone)."""
     try:
@@ -378,11 +395,30 @@ class Stack:
             replies = session.liveliness().get(keys.alive_key(self.config.name, "*"), timeout=2.0)
             alive = {str(r.ok.key_expr) for r in replies if r.ok is not None}
             if want <= alive:
+                if "camera" in self.services:
+                    self._wait_frames(session, deadline)
                 return
             if self.proc is not None and self.proc.poll() is not None:
                 break
             time.sleep(0.5)
         raise RuntimeError(f"not alive: {sorted(want - alive)}\n{self.output()[-3000:]}")
+
+    def _wait_frames(self, session: zenoh.Session, deadline: float, count: int = 3) -> None:
+        """Until the camera has detected ``count`` frames: the start of a run is the camera at work
+        (its first frames take it from about 80 to 95 MiB; that is not what an attacker did)."""
+        subscriber = session.declare_subscriber(keys.key(self.config.name, keys.LANDMARKS),
+                                                zenoh.handlers.FifoChannel(16))
+        try:
+            seen = 0
+            while seen < count:
+                if subscriber.handler.try_recv() is not None:
+                    seen += 1
+                elif time.monotonic() > deadline:
+                    raise RuntimeError(f"the camera detected {seen} frames, not {count}\n{self.output()[-3000:]}")
+                else:
+                    time.sleep(0.1)
+        finally:
+            subscriber.undeclare()
 
     def stop(self) -> int | None:
         if self.proc is None:
@@ -498,6 +534,7 @@ def main() -> None:
     p.add_argument("--payloads", type=int, default=100_000)
     p.add_argument("--requests", type=int, default=50_000)
     p.add_argument("--idle", type=int, default=500, help="idle keep-alive connections left open")
+    p.add_argument("--burst", type=int, default=4_000, help="good camera queries, 32 at a time")
     p.add_argument("--rate", type=float, default=10_000.0, help="bad payloads per second, at most")
     p.add_argument("--steps", type=int, default=4, help="RSS read after each of this many parts of a run")
     p.add_argument("--services", default=",".join(STACK), help="the services of the robot (default: %(default)s)")
@@ -549,6 +586,16 @@ def main() -> None:
             codes = Counter(status for (_, _, status) in answers.elements())
             print(f"  answers: {dict(sorted(codes.items()))}, 200 only from "
                   f"{sorted({route for (_, route, status) in answers if status == '200'})}")
+            lines = report(lines)
+        if args.burst and "camera" in services:
+            t0 = time.monotonic()
+            got: Counter[str] = Counter()
+            rss = _rss_over(stack, args.steps, lambda i: got.update(
+                query_burst(session, robot, args.burst // args.steps)))
+            print(f"\n{args.burst} good camera queries (snapshot, frame), 32 at a time, in "
+                  f"{time.monotonic() - t0:.1f} s; RSS, MiB:")
+            _table(rss, heads)
+            print(f"  answers: {dict(got)}")
             lines = report(lines)
         if args.idle:
             idle_connections(stack, args.idle)

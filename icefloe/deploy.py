@@ -47,6 +47,12 @@ from .errors import ConfigError
 SYSTEMD_TEMPLATES = paths.packaged("systemd")
 UNIT_DIR = Path("/etc/systemd/system")
 USER = "icefloe"
+SERVICE_ENV = {"PYTHONUNBUFFERED": "1", "MALLOC_ARENA_MAX": "2"}
+"""The environment of icefloe's own processes, from systemd (``Environment=`` of each unit) and from
+`icefloe up` alike. ``MALLOC_ARENA_MAX``: glibc gives each thread that allocates an arena of its
+own, up to eight per core, and keeps what it grew; a burst of camera queries (worker threads
+resizing and encoding frames) left the camera 10 to 13 MiB larger, with two arenas 5.6 MiB,
+with one 3.2 (docs/hostile-input.md)."""
 USER_HOME = Path("/var/lib/icefloe")
 GROUPS = ("dialout", "spi", "i2c", "gpio", "video")
 PREFIX = Path("/opt/icefloe")
@@ -411,7 +417,8 @@ def units(config: RobotConfig, config_path: Path, python: str | os.PathLike[str]
     """Unit file name -> content, from the templates in deploy/systemd/."""
     cpu = rt_cpu(config)
     values = {"robot": config.name, "user": USER, "python": str(python), "config": str(config_path),
-              "cpu": str(cpu), "cpus": str(cpu)}
+              "cpu": str(cpu), "cpus": str(cpu),
+              "environment": " ".join(f"{key}={value}" for key, value in SERVICE_ENV.items())}
     out = {}
     for template in sorted(SYSTEMD_TEMPLATES.iterdir()):
         text = template.read_text()

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .config import RobotConfig
+from .deploy import SERVICE_ENV
 from .errors import EXIT_CONFIG, ConfigError
 from .runtime import CANNOT_START, run_async
 
@@ -156,7 +157,8 @@ class Launcher:
 
     async def _start(self, child: Child) -> bool:
         """Start the child's process; False (said why) if it cannot be started at all."""
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", **child.env}
+        own = {"PYTHONUNBUFFERED": "1"} if child.program else SERVICE_ENV  # yours: as you set it up
+        env = {**os.environ, **own, **child.env}
         try:
             child.process = await asyncio.create_subprocess_exec(
                 *child.argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,

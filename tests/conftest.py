@@ -27,6 +27,7 @@ import pytest
 
 from icefloe import config as config_mod
 from icefloe.config import RobotConfig
+from icefloe.deploy import SERVICE_ENV
 from icefloe.runtime import Node
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -117,7 +118,7 @@ class Robot:
         )
         self.config: RobotConfig = config_mod.load(self.config_path)
         self.procs: list[Proc] = []
-        self.env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.env = {**os.environ, **SERVICE_ENV}  # as systemd and `icefloe up` start them
         self.router = self.start_module("icefloe.router", name="router")
         _wait_port(self.port, self.router)
 

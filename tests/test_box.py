@@ -30,6 +30,7 @@ import pytest
 from conftest import ROOT
 
 from icefloe.credentials import read as read_credentials
+from icefloe.deploy import SERVICE_ENV
 
 BOX = ROOT / "deploy" / "box.sh"
 ICEFLOE = ROOT / ".venv" / "bin" / "icefloe"
@@ -207,6 +208,8 @@ def test_2_after_a_reboot_every_unit_runs_as_icefloe(box: Box) -> None:
     for unit in UNITS:
         user = box.run(f"ps -o user= -p {units[unit]['MainPID']}").stdout.strip()
         assert user == "icefloe", (unit, user)
+        environ = box.run(f"tr '\\0' '\\n' < /proc/{units[unit]['MainPID']}/environ").stdout.splitlines()
+        assert {f"{k}={v}" for k, v in SERVICE_ENV.items()} <= set(environ), (unit, environ)
     # hwbridge's cycle (its rt child process): SCHED_FIFO with memory locked, or one line saying so
     journal = box.run("journalctl -b -u icefloe-hwbridge --no-pager -o cat").stdout
     rt = box.run("pid=$(pgrep -u icefloe -f 'services[.]hwbridge[.]rt' | head -1) && chrt -p $pid && "

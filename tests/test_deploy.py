@@ -42,6 +42,16 @@ def test_dry_run_shows_the_real_time_settings_of_hwbridge(dry_run: str) -> None:
     assert "isolcpus=" in dry_run
 
 
+def test_every_unit_gives_its_process_the_service_environment() -> None:
+    cfg = config.load("penguin1")
+    rendered = deploy.units(cfg, deploy.ROBOTS / "penguin1.toml", "/opt/icefloe/venv/bin/python")
+    want = "Environment=" + " ".join(f"{k}={v}" for k, v in deploy.SERVICE_ENV.items())
+    for name, text in rendered.items():
+        assert "{" not in text, (name, text)  # every placeholder filled in
+        if name.endswith(".service"):
+            assert want in text.splitlines(), (name, text)
+
+
 def test_dry_run_shows_the_permission_steps(dry_run: str) -> None:
     assert "usermod -aG dialout,spi,i2c,gpio,video icefloe" in dry_run
     assert "write /etc/udev/rules.d/99-icefloe.rules" in dry_run

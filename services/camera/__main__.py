@@ -35,11 +35,13 @@ from icefloe.schemas import messages as m
 from icefloe.worldmap import load_world
 
 from .detection import BadFrame, Detector, check_frame
-from .frames import Frames, camera_info, jpeg
+from .frames import Frames, camera_info
 from .geometry import Intrinsics, Mount
 from .sources import SimSource, Source, SourceError, open_source, picamera2_class
 
 RETRY_S = 2.0
+SNAPSHOT_QUALITY = 90
+"""JPEG quality of ``camera/snapshot`` (calibration images: sharper than the stream's)."""
 REPORT_S = 10.0
 
 
@@ -120,6 +122,7 @@ async def main(config: RobotConfig) -> None:
     async with Node("camera", config) as node:
         slot, stop, sources = LatestFrame(), threading.Event(), []
         small = Frames(cam)
+        full = Frames(cam, full=True, quality=SNAPSHOT_QUALITY)
         landmarks = node.publisher(keys.LANDMARKS)
         images = node.publisher(keys.IMAGE)
         stream = node.publisher(keys.FRAMES)
@@ -128,9 +131,7 @@ async def main(config: RobotConfig) -> None:
             frame = slot.latest
             if frame is None:
                 raise SourceError(f"camera {cam.source!r} has delivered no frame yet")
-            stamp, image = frame
-            return m.Image(stamp=stamp, width=image.shape[1], height=image.shape[0],
-                           data=await asyncio.to_thread(jpeg, image, 90))
+            return await asyncio.to_thread(full.of, frame)
 
         node.queryable(keys.SNAPSHOT, snapshot)
 

@@ -1,7 +1,9 @@
 """The frames HTTP clients get: JPEGs of ``camera.image_width`` x ``image_height``, and their intrinsics.
 
 * `Frames` encodes the latest frame at that size once, however many ask for it
-  (``camera/image`` a few times a second, ``camera/frame`` queries, ``camera/frames``).
+  (``camera/image`` a few times a second, ``camera/frame`` queries, ``camera/frames``); the
+  camera's ``camera/snapshot`` uses another, at the capture size. A burst of queries
+  costs one JPEG per frame, not one per query.
 * ``camera/frames`` carries every captured frame, but only while something subscribes to it
   (Zenoh's matching status): the web API subscribes while an HTTP client watches
   ``/camera/get``, so an unwatched camera spends nothing on it.
@@ -33,26 +35,33 @@ def jpeg(image: np.ndarray, quality: int) -> bytes:
 
 
 class Frames:
-    """The latest frame as the small JPEG, encoded once: thread-safe (the capture thread and
-    the event loop's workers both ask)."""
+    """The latest frame as a JPEG of one size, encoded once: thread-safe (the capture thread and
+    the event loop's workers both ask).
 
-    def __init__(self, camera: Camera) -> None:
-        self.width, self.height, self.quality = camera.image_width, camera.image_height, camera.jpeg_quality
+    By default the small frames of HTTP clients (``camera.image_width`` x ``image_height``, at
+    ``camera.jpeg_quality``); ``full=True``: the capture size, at ``quality``."""
+
+    def __init__(self, camera: Camera, *, full: bool = False, quality: int | None = None) -> None:
+        self.width, self.height = (camera.width, camera.height) if full else (camera.image_width, camera.image_height)
+        self.quality = camera.jpeg_quality if quality is None else quality
         self._lock = threading.Lock()
         self._frame: Frame | None = None
         self._image: m.Image | None = None
 
     def of(self, frame: Frame) -> m.Image:
-        """``frame`` resized and encoded; the same object again for the same frame."""
+        """``frame`` resized and encoded; the same object again for the same frame.
+
+        Encoded under the lock: whoever asks while it is being encoded waits for that JPEG
+        rather than making one more (a burst of 32 queries held 32 JPEGs, +9 MiB)."""
         with self._lock:
-            if frame is self._frame and self._image is not None:
-                return self._image
-        stamp, image = frame
-        small = cv2.resize(image, (self.width, self.height), interpolation=cv2.INTER_AREA)
-        encoded = m.Image(stamp=stamp, width=self.width, height=self.height, data=jpeg(small, self.quality))
-        with self._lock:
-            self._frame, self._image = frame, encoded
-        return encoded
+            if frame is not self._frame or self._image is None:
+                stamp, image = frame
+                if image.shape[1] != self.width or image.shape[0] != self.height:
+                    image = cv2.resize(image, (self.width, self.height), interpolation=cv2.INTER_AREA)
+                self._image = m.Image(stamp=stamp, width=self.width, height=self.height,
+                                      data=jpeg(image, self.quality))
+                self._frame = frame
+            return self._image
 
 
 def camera_info(camera: Camera, intrinsics: Intrinsics) -> m.CameraInfo:
