@@ -107,7 +107,8 @@ def camera_messages(config: RobotConfig) -> tuple[m.Image, m.Landmarks]:
     pose where it sees at least two markers of the world."""
     import cv2
 
-    from icefloe.services.camera.__main__ import jpeg, make_detector
+    from icefloe.services.camera.__main__ import make_detector
+    from icefloe.services.camera.frames import jpeg
     from icefloe.services.camera.sources import SimSource
 
     cam, source = config.camera, SimSource(config)
