@@ -50,9 +50,9 @@ USER = "icefloe"
 SERVICE_ENV = {"PYTHONUNBUFFERED": "1", "MALLOC_ARENA_MAX": "2"}
 """The environment of icefloe's own processes, from systemd (``Environment=`` of each unit) and from
 `icefloe up` alike. ``MALLOC_ARENA_MAX``: glibc gives each thread that allocates an arena of its
-own, up to eight per core, and keeps what it grew; a burst of camera queries (worker threads
-resizing and encoding frames) left the camera 10 to 13 MiB larger, with two arenas 5.6 MiB,
-with one 3.2 (docs/hostile-input.md)."""
+own, up to eight per core, and keeps what it grew: 4,000 camera queries, 32 at a time (worker
+threads encoding frames), left the camera 8.4 MiB larger with glibc's default, 3.3 with two
+(docs/hostile-input.md)."""
 USER_HOME = Path("/var/lib/icefloe")
 GROUPS = ("dialout", "spi", "i2c", "gpio", "video")
 PREFIX = Path("/opt/icefloe")

@@ -52,7 +52,7 @@ class Frames:
         """``frame`` resized and encoded; the same object again for the same frame.
 
         Encoded under the lock: whoever asks while it is being encoded waits for that JPEG
-        rather than making one more (a burst of 32 queries held 32 JPEGs, +9 MiB)."""
+        rather than making one more (32 snapshot queries at once were 32 encodings of one frame)."""
         with self._lock:
             if frame is not self._frame or self._image is None:
                 stamp, image = frame
