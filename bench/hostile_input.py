@@ -53,7 +53,7 @@ from stack_cpu import children
 from icefloe import config as config_mod
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload
-from icefloe.runtime import raw_session
+from icefloe.runtime import MAX_QUERIES, raw_session
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
@@ -315,7 +315,7 @@ async def fuzz_http(host: str, port: int, count: int, seed: int, concurrency: in
 # ---------------------------------------------------------------------- the stack
 
 
-def query_burst(session: zenoh.Session, robot: str, count: int, at_once: int = 32) -> Counter[str]:
+def query_burst(session: zenoh.Session, robot: str, count: int, at_once: int = MAX_QUERIES) -> Counter[str]:
     """``count`` good queries on the camera's ``camera/snapshot`` and ``camera/frame``, ``at_once``
     in flight (the most a queryable answers at once): a class asking for pictures. Answers by kind."""
     body = codec.encode(m.Stop())
@@ -534,7 +534,7 @@ def main() -> None:
     p.add_argument("--payloads", type=int, default=100_000)
     p.add_argument("--requests", type=int, default=50_000)
     p.add_argument("--idle", type=int, default=500, help="idle keep-alive connections left open")
-    p.add_argument("--burst", type=int, default=4_000, help="good camera queries, 32 at a time")
+    p.add_argument("--burst", type=int, default=4_000, help=f"good camera queries, {MAX_QUERIES} at a time")
     p.add_argument("--rate", type=float, default=10_000.0, help="bad payloads per second, at most")
     p.add_argument("--steps", type=int, default=4, help="RSS read after each of this many parts of a run")
     p.add_argument("--services", default=",".join(STACK), help="the services of the robot (default: %(default)s)")
@@ -592,7 +592,7 @@ def main() -> None:
             got: Counter[str] = Counter()
             rss = _rss_over(stack, args.steps, lambda i: got.update(
                 query_burst(session, robot, args.burst // args.steps)))
-            print(f"\n{args.burst} good camera queries (snapshot, frame), 32 at a time, in "
+            print(f"\n{args.burst} good camera queries (snapshot, frame), {MAX_QUERIES} at a time, in "
                   f"{time.monotonic() - t0:.1f} s; RSS, MiB:")
             _table(rss, heads)
             print(f"  answers: {dict(got)}")
