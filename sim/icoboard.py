@@ -32,6 +32,7 @@ import contextlib
 import logging
 import os
 import random
+import select
 import socket
 import threading
 from dataclasses import dataclass
@@ -270,6 +271,12 @@ class IcoBoardSim:
     `lock`, which the clock also holds while it steps the world. A model with
     an ``advance(now)`` method gets it called first, without `lock`: its own
     time runs there (it locks what it needs by itself).
+
+    `tick` first answers the frames already waiting in the socket, so a frame that
+    arrived before a simulated millisecond is taken in it. Otherwise, after this
+    process had been descheduled (a busy machine), the clock would catch up first
+    and the board's watchdog fire on frames the host had sent in time.
+    Every frame is read and answered under `lock`, so none overtakes another.
     """
 
     def __init__(self, world: Wheels, board: Board, *, seed: int = 0,
@@ -284,7 +291,8 @@ class IcoBoardSim:
             self.path.unlink()  # a stale socket from a killed simulator
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self._sock.bind(str(self.path))
-        self._sock.settimeout(0.1)  # so the thread notices `close`
+        self._sock.setblocking(False)  # the thread waits in select, 0.1 s at a time, to notice `close`
+        self._holding = False          # a reply `delay_replies` holds back: the frames after it wait
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="icoboard-sim", daemon=True)
         self._thread.start()
@@ -304,26 +312,60 @@ class IcoBoardSim:
         if advance is not None:
             advance(now)
         with self.lock:
+            if not (self._holding or self._delay[1]):
+                self._answer_waiting()
             self._now = now
             self.model.tick(now)
 
     def _serve(self) -> None:
         while not self._stop.is_set():
             try:
-                frame, sender = self._sock.recvfrom(4096)
-            except TimeoutError:
-                continue
-            except OSError:
+                if not select.select((self._sock,), (), (), 0.1)[0]:
+                    continue
+                with self.lock:
+                    seconds, count = self._delay
+                    if not count:
+                        self._answer()
+                        continue
+                    held = self._receive()
+                    if held is None:
+                        continue
+                    self._delay = (seconds, count - 1)
+                    self._holding = True
+            except (OSError, ValueError):
                 return  # closed
-            with self.lock:
-                reply = self.model.exchange(frame, self._now)
-                seconds, count = self._delay
-                self._delay = (seconds, max(0, count - 1))
-            if count:
-                self._stop.wait(seconds)
-            if sender:
-                with contextlib.suppress(OSError):  # the host went away
-                    self._sock.sendto(reply, sender)
+            self._stop.wait(seconds)
+            self._send(*held)
+            self._holding = False
+
+    def _answer_waiting(self) -> None:
+        """Under `lock`: answer every frame waiting in the socket (select first: most
+        milliseconds none is, and an empty recv costs twice as much)."""
+        try:
+            while select.select((self._sock,), (), (), 0)[0] and self._answer():
+                pass
+        except (OSError, ValueError):
+            pass  # closed
+
+    def _answer(self) -> bool:
+        """Under `lock`: answer one waiting frame now; False if none was waiting."""
+        held = self._receive()
+        if held is not None:
+            self._send(*held)
+        return held is not None
+
+    def _receive(self) -> tuple[bytes, str | bytes] | None:
+        """Under `lock`: one waiting frame, exchanged with the model; its reply and where it goes."""
+        try:
+            frame, sender = self._sock.recvfrom(4096)
+        except BlockingIOError:
+            return None
+        return self.model.exchange(frame, self._now), sender
+
+    def _send(self, reply: bytes, sender: str | bytes) -> None:
+        if sender:
+            with contextlib.suppress(OSError):  # the host went away, or its queue is full
+                self._sock.sendto(reply, sender)
 
     def close(self) -> None:
         """Stop the I/O thread, close the socket and remove its file (idempotent)."""

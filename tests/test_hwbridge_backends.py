@@ -173,9 +173,17 @@ class FakeBoard(Board):
         self.calls: list[tuple[int, float, float, bool]] = []
         self.until_ns = 0
         self.fail_next = False
+        self.link: list[str] = []
+        """open, stop and close, in the order the cycle called them."""
 
     def open(self, now_ns: int) -> None:
-        pass
+        self.link.append("open")
+
+    def stop(self) -> None:
+        self.link.append("stop")
+
+    def close(self) -> None:
+        self.link.append("close")
 
     def cycle(self, now_ns: int, left: float, right: float, stopped: bool, until_ns: int = 0) -> None:
         if self.fail_next:
@@ -238,6 +246,25 @@ def test_cycle_survives_a_lost_link_and_retries(shared) -> None:
     assert cycle.link_up
     lines, _ = shared.pop_messages()
     assert any("board link lost: fake: gone" in text for _, text in lines)
+
+
+def test_shutdown_opens_a_lost_link_once_more_to_stop_the_board(shared) -> None:
+    """SIGTERM within the second between a lost link and its retry: the board still hears
+    the stop (EXIT on the icoBoard), not only the zero-duty frame of the lost link."""
+    board = FakeBoard(RobotConfig())
+    cycle = Cycle(RobotConfig(), shared, board)
+    cycle.step(MS)
+    cycle.shutdown()
+    assert board.link == ["open", "stop", "close"]     # the link was up: stopped, no reopening
+    board = FakeBoard(RobotConfig())
+    cycle = Cycle(RobotConfig(), shared, board)
+    cycle.step(MS)
+    board.fail_next = True
+    cycle.step(2 * MS)                                 # lost: stop_lost (= stop here), close
+    assert not cycle.link_up and board.link == ["open", "stop", "close"]
+    board.link.clear()
+    cycle.shutdown()
+    assert board.link == ["open", "stop", "close"]
 
 
 def test_a_stop_goes_out_between_periods_once(shared) -> None:

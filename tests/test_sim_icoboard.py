@@ -173,6 +173,37 @@ def test_v2_valid_frames_feed_the_watchdog(bench: Bench) -> None:
 
 
 @pytest.mark.parametrize("bench", [2], indirect=True)
+def test_v2_a_frame_waiting_in_the_socket_is_taken_before_the_watchdog_looks(bench: Bench) -> None:
+    """The simulator's process was descheduled: the host's EXIT (sent in time) waits in the
+    socket while the clock catches up 60 ms. The clock answers it first; the watchdog stays quiet."""
+    bench.send(Op.START)
+    bench.send(Op.TRANSMIT, (HALF, HALF))
+    with bench.sim.lock:  # the socket thread cannot answer: only the clock can
+        bench.seq += 1
+        bench.host.send(bench.wire.request(Op.EXIT, seq=bench.seq))
+        bench.run(60)
+    assert bench.host.recv(4096)[0] & Status.RUNNING  # the reply, sent by the clock's first tick
+    assert bench.sim.model.last_frame[0] == Op.EXIT
+    assert bench.sim.model.counters.watchdog_trips == 0
+    assert bench.world.duty == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("bench", [2], indirect=True)
+def test_v2_a_delayed_reply_holds_back_the_frames_after_it(bench: Bench) -> None:
+    bench.send(Op.START)
+    bench.sim.delay_replies(0.3, count=1)
+    bench.seq += 1
+    bench.host.send(bench.wire.request(Op.TRANSMIT, seq=bench.seq, duties=(HALF, HALF)))
+    bench.seq += 1
+    bench.host.send(bench.wire.request(Op.TRANSMIT, seq=bench.seq, duties=(-HALF, -HALF)))
+    bench.run(5)  # the clock must not take the second frame past the held-back first
+    assert bench.world.duty[0] > -0.49  # the first taken, or (a busy machine) neither yet
+    first, second = (bench.wire.parse_reply(Op.TRANSMIT, bench.host.recv(4096)) for _ in range(2))
+    assert (first.ack, second.ack) == (bench.seq - 2, bench.seq - 1)  # in order, each acking the one before
+    assert bench.world.duty[0] < -0.49
+
+
+@pytest.mark.parametrize("bench", [2], indirect=True)
 def test_v2_corrupt_frames_are_counted_not_used(bench: Bench) -> None:
     model = bench.sim.model
     bench.send(Op.START)

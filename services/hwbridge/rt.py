@@ -37,6 +37,7 @@ itself creates only short-lived objects that reference counting frees at once.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import ctypes.util
 import gc
@@ -325,9 +326,18 @@ class Cycle:
                 deadline += missed * period
 
     def shutdown(self) -> None:
-        """Stop the wheels (EXIT / MULTI_ALL_STOP) and release the link."""
-        self.board.stop()
-        self.board.close()
+        """Stop the wheels (EXIT / MULTI_ALL_STOP) and release the link.
+
+        A link lost in the last second (the retry not yet due) is opened once more for it:
+        `stop_lost` zeroed the duty, but only EXIT leaves the icoBoard stopped, and the stop
+        that `stop_lost` sent may itself not have arrived.
+        """
+        board = self.board
+        if not self.link_up and not self.mismatch:
+            with contextlib.suppress(BoardError):
+                board.open(time.monotonic_ns())
+        board.stop()
+        board.close()
         self._publish()
 
 
