@@ -272,10 +272,13 @@ class IcoBoardSim:
     an ``advance(now)`` method gets it called first, without `lock`: its own
     time runs there (it locks what it needs by itself).
 
-    `tick` first answers the frames already waiting in the socket, so a frame that
-    arrived before a simulated millisecond is taken in it. Otherwise, after this
-    process had been descheduled (a busy machine), the clock would catch up first
-    and the board's watchdog fire on frames the host had sent in time.
+    With the Python model, `tick` first answers the frames already waiting in the
+    socket, so a frame that arrived before a simulated millisecond is taken in it.
+    Otherwise, after this process had been descheduled (a busy machine), the clock
+    would catch up (up to 100 steps) first and the board's watchdog fire on frames
+    the host had sent in time. The gateware's clock catches up 5 steps at most, so
+    its frames never wait that long; and there, answering in the clock's thread
+    slowed the simulation on a starved core (docs/sim.md).
     Every frame is read and answered under `lock`, so none overtakes another.
     """
 
@@ -293,6 +296,7 @@ class IcoBoardSim:
         self._sock.bind(str(self.path))
         self._sock.setblocking(False)  # the thread waits in select, 0.1 s at a time, to notice `close`
         self._holding = False          # a reply `delay_replies` holds back: the frames after it wait
+        self._answer_in_tick = not hasattr(self.model, "advance")  # the Python model (above)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="icoboard-sim", daemon=True)
         self._thread.start()
@@ -312,7 +316,7 @@ class IcoBoardSim:
         if advance is not None:
             advance(now)
         with self.lock:
-            if not (self._holding or self._delay[1]):
+            if self._answer_in_tick and not (self._holding or self._delay[1]):
                 self._answer_waiting()
             self._now = now
             self.model.tick(now)
