@@ -261,6 +261,11 @@ class BoardModel(Protocol):
     def tick(self, now: float) -> None: ...
 
 
+TICK_FRAMES = 64
+"""At most this many waiting frames answered in one simulated millisecond (after a 50 ms
+stall a 1 kHz host has sent 50; the kernel queues fewer, net.unix.max_dgram_qlen)."""
+
+
 class IcoBoardSim:
     """A board model behind the datagram socket ``board.sim_socket``, with its own I/O thread.
 
@@ -343,11 +348,13 @@ class IcoBoardSim:
             self._holding = False
 
     def _answer_waiting(self) -> None:
-        """Under `lock`: answer every frame waiting in the socket (select first: most
-        milliseconds none is, and an empty recv costs twice as much)."""
+        """Under `lock`: answer the frames waiting in the socket, at most `TICK_FRAMES` (a host
+        flooding the socket must not hold the clock); select first: most milliseconds none is
+        waiting, and an empty recv costs twice as much."""
         try:
-            while select.select((self._sock,), (), (), 0)[0] and self._answer():
-                pass
+            for _ in range(TICK_FRAMES):
+                if not (select.select((self._sock,), (), (), 0)[0] and self._answer()):
+                    return
         except (OSError, ValueError):
             pass  # closed
 

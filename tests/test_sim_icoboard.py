@@ -8,6 +8,10 @@ the 50 ms watchdog) is checked exactly.
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,7 +22,7 @@ from icoboard_vectors import DUTY_TOLERANCE, SCENARIOS, Duty, Move, Send, Trips,
 from icefloe.config import Board, Geometry
 from icefloe.errors import BoardMismatch
 from icefloe.sim.gpio import ACK, BUTTON, REQUEST, GpioLines
-from icefloe.sim.icoboard import IcoBoardModel, IcoBoardSim
+from icefloe.sim.icoboard import TICK_FRAMES, IcoBoardModel, IcoBoardSim
 from icefloe.sim.world import World
 from icefloe.wire.icoboard import (
     BadCrc,
@@ -186,6 +190,51 @@ def test_v2_a_frame_waiting_in_the_socket_is_taken_before_the_watchdog_looks(ben
     assert bench.sim.model.last_frame[0] == Op.EXIT
     assert bench.sim.model.counters.watchdog_trips == 0
     assert bench.world.duty == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("bench", [2], indirect=True)
+def test_a_host_flooding_the_socket_does_not_hold_the_clock(bench: Bench) -> None:
+    """Another process sends frames as fast as it can: the clock answers a bounded number in
+    each millisecond, and steps on. (Without the bound, 20 ticks took 0.6 to 1.1 s here, the
+    clock answering the flood; with it, 65 to 90 ms.)"""
+    flood = subprocess.Popen([sys.executable, "-c", FLOOD, bench.sim.path.as_posix(),
+                              bench.wire.request(Op.EMPTY).hex()])
+    try:
+        while bench.sim.model.counters.frames < 1000:  # the flood is on
+            assert flood.poll() is None, "the flooding process died"
+            time.sleep(0.01)
+        model, clock = bench.sim.model, threading.current_thread()  # this test is the clock
+        exchange, by_clock = model.exchange, [0]
+
+        def counted(frame: bytes, now: float) -> bytes:
+            by_clock[0] += threading.current_thread() is clock
+            return exchange(frame, now)
+
+        model.exchange = counted
+        per_tick = []
+        for _ in range(20):
+            by_clock[0] = 0
+            bench.run(1)
+            per_tick.append(by_clock[0])
+        model.exchange = exchange
+        assert max(per_tick) <= TICK_FRAMES, per_tick
+    finally:
+        flood.kill()
+        flood.wait()
+    assert bench.send(Op.RECEIVE)  # and the board still answers
+
+
+FLOOD = """
+import socket, sys
+sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+sock.connect(sys.argv[1])
+frame = bytes.fromhex(sys.argv[2])
+while True:
+    try:
+        sock.send(frame)
+    except BlockingIOError:
+        pass
+"""
 
 
 @pytest.mark.parametrize("bench", [2], indirect=True)
