@@ -1,39 +1,60 @@
 # Sourced by deploy/up.sh and tests/run.sh: make .venv with icefloe installed (editable), once.
-# Usage: ensure_venv EXTRAS   (e.g. "viz" or "dev"); reinstalls when pyproject.toml changes.
+# Usage: ensure_venv EXTRA   ("viz", "robot", "dev" or "planner"); installs again when pyproject.toml or
+# the lock changes.
+# Every version comes from the lock (deploy/requirements/<extra>.txt, exported from uv.lock by
+# tools/lock.py; docs/DEVELOPING.md, "The lock"), with pip checking every file's hash: pip and
+# setuptools first (build.txt), then the extra's packages, then icefloe itself with no dependencies.
 # "planner": only what plans and runs a robot install (icefloe/deploy.py: icefloe and msgspec, no
 # other dependency), so that a robot's install downloads the robot's dependencies once, into
 # /opt/icefloe/venv, not twice.
+# ICEFLOE_UNLOCKED=1: the newest release of everything within pyproject.toml's ranges instead
+# (tests/run.sh --newest); so also on a machine the lock does not cover (not Linux on x86_64 or aarch64).
 ensure_venv() {
-    local extras="$1" py="${PYTHON:-python3}"
+    local extras="$1" py="${PYTHON:-python3}" lock=deploy/requirements
     if ! "$py" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
         echo "icefloe needs Python >= 3.11 (found: $("$py" --version 2>&1)); set PYTHON=/path/to/python3.11" >&2
         exit 1
+    fi
+    local locked=1
+    if [ "${ICEFLOE_UNLOCKED:-0}" = 1 ]; then
+        locked=0
+    elif [ "$(uname -s)" != Linux ] || ! [[ "$(uname -m)" =~ ^(x86_64|aarch64)$ ]]; then
+        echo "== the lock covers Linux on x86_64 and aarch64, not $(uname -s) $(uname -m):" \
+             "installing the newest versions within pyproject.toml's ranges (untested)" >&2
+        locked=0
     fi
     if [ ! -x .venv/bin/python ]; then
         echo "== creating .venv with $("$py" --version)"
         "$py" -m venv .venv
     fi
     local sum stamp
-    sum="$(cksum < pyproject.toml | cut -d' ' -f1)"
+    sum="$(cat pyproject.toml "$lock/build.txt" "$lock/$extras.txt" 2>/dev/null | cksum | cut -d' ' -f1)"
+    [ "$locked" = 1 ] || sum="unlocked-$(cksum < pyproject.toml | cut -d' ' -f1)"
     stamp=".venv/.icefloe-$extras-$sum"
     if [ "$extras" = viz ] && [ -e ".venv/.icefloe-dev-$sum" ]; then
         return 0  # the dev extra holds the viz extra: a developer's .venv runs up.sh as it is
     fi
-    if [ "$extras" = planner ] && compgen -G ".venv/.icefloe-*-$sum" >/dev/null; then
+    if [ "$extras" = planner ] && compgen -G ".venv/.icefloe-*" >/dev/null; then
         return 0  # any install of icefloe plans a robot install too
     fi
-    if [ "$extras" = planner ]; then
-        echo "== installing icefloe's robot installer into .venv (icefloe and msgspec only)"
-        .venv/bin/python -m pip install --quiet "msgspec>=0.19"   # (as in pyproject.toml)
-        .venv/bin/python -m pip install --quiet --no-deps -e .
-        touch "$stamp"
-    elif [ ! -e "$stamp" ]; then
-        echo "== installing icefloe[$extras] into .venv (first run takes a few minutes)"
-        .venv/bin/python -m pip install --quiet --upgrade pip
-        .venv/bin/python -m pip install --quiet -e ".[$extras]"
-        rm -f .venv/.icefloe-"$extras"-*
-        touch "$stamp"
+    [ -e "$stamp" ] && return 0
+    local pip=(.venv/bin/python -m pip install --quiet)
+    if [ "$locked" = 1 ]; then
+        echo "== installing icefloe[$extras] into .venv, as locked ($lock/$extras.txt; first run takes a few minutes)"
+        "${pip[@]}" --require-hashes -r "$lock/build.txt"
+        "${pip[@]}" --require-hashes -r "$lock/$extras.txt"
+        "${pip[@]}" --no-deps --no-build-isolation -e .
+    else
+        echo "== installing icefloe[$extras] into .venv: the newest versions within pyproject.toml's ranges"
+        "${pip[@]}" --upgrade pip setuptools
+        if [ "$extras" = planner ]; then
+            "${pip[@]}" --upgrade "msgspec>=0.19" && "${pip[@]}" --no-deps -e .   # (as in pyproject.toml)
+        else
+            "${pip[@]}" --upgrade --upgrade-strategy eager -e ".[$extras]"
+        fi
     fi
+    rm -f .venv/.icefloe-"$extras"-*
+    touch "$stamp"
 }
 
 # Usage: ensure_apt COMMAND PACKAGE...   install Debian packages when COMMAND is missing, if we are

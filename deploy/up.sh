@@ -8,6 +8,7 @@
 #   ./deploy/up.sh penguin1 --install  install the robot on a machine that is not a Raspberry Pi
 #       --no-boot-config               ... without the Pi's boot config (/boot/firmware)
 #       --source=SRC                   ... icefloe from SRC (a wheel, a requirement), not this checkout
+#       --wheelhouse=DIR               ... every package from DIR (no download), refused unless it matches the lock
 #
 # On a Raspberry Pi whose config has [board] backend = "hardware", it installs the robot instead:
 # /opt/icefloe/venv, system user, device permissions, boot config, credentials, one systemd unit
@@ -22,7 +23,7 @@ for arg in "$@"; do
     case "$arg" in
         --dry-run) mode=dry ;;
         --install) mode=install ;;
-        --no-boot-config|--source=*) deploy_args+=("$arg") ;;
+        --no-boot-config|--source=*|--wheelhouse=*) deploy_args+=("$arg") ;;
         -*) ;;
         *) [ -z "$config" ] && config="$arg" ;;
     esac

@@ -1,6 +1,6 @@
 """Install (or remove) an icefloe robot on its Raspberry Pi: what `deploy/up.sh` does on a robot.
 
-    python -m icefloe.deploy install CONFIG [--dry-run] [--no-boot-config] [--source SRC]
+    python -m icefloe.deploy install CONFIG [--dry-run] [--no-boot-config] [--source SRC] [--wheelhouse DIR]
     python -m icefloe.deploy remove CONFIG [--dry-run] [--purge]          (deploy/down.sh)
 
 Every step is an `Action`: a description, and a command, a file to write or a small Python
@@ -34,13 +34,14 @@ import subprocess
 import sys
 import tempfile
 import threading
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import config as config_mod
 from . import credentials as credentials_mod
-from . import paths
+from . import lock, paths
 from .config import RobotConfig
 from .errors import ConfigError
 
@@ -353,8 +354,55 @@ def base_python() -> str:
     return getattr(sys, "_base_executable", sys.executable)
 
 
-def install_venv(source: str, extras: str, manifest: Manifest) -> bool:
-    """`VENV` with icefloe[extras] from ``source`` (a checkout, a wheel, a requirement), once per source."""
+def lock_of(source: str, into: Path) -> Path | None:
+    """The folder of the lock's exports that belong to ``source``: a checkout's ``deploy/requirements``,
+    a wheel's own (copied out into ``into``); None for a pip requirement, which carries no lock."""
+    path = Path(source)
+    if path.is_dir():
+        return path / "deploy" / "requirements"
+    if path.is_file() and path.suffix == ".whl":
+        with zipfile.ZipFile(path) as wheel:
+            names = [n for n in wheel.namelist() if n.startswith("icefloe/share/requirements/") and n.endswith(".txt")]
+            if not names:
+                raise ConfigError(f"{source}: this wheel carries no lock (icefloe/share/requirements/): "
+                                  "build it again from a checkout with the lock")
+            into.mkdir(parents=True, exist_ok=True)
+            for name in names:
+                (into / Path(name).name).write_bytes(wheel.read(name))
+        return into
+    return None
+
+
+def lock_files(folder: Path, extras: str) -> list[Path]:
+    """The exports to install for ``extras`` (``robot``, ``robot,icoboard``): pip and setuptools
+    first (``build.txt``), then one file per extra (each holds the base too)."""
+    names = [e.strip() for e in extras.split(",") if e.strip()] or ["base"]
+    files = [folder / f"{n}.txt" for n in ["build", *names]]
+    for f in files:
+        if not f.exists():
+            raise ConfigError(f"{f}: no such export of the lock: is {f.stem!r} an extra of icefloe?")
+    return files
+
+
+def check_wheelhouse(source: str, extras: str, wheelhouse: Path) -> None:
+    """Refuse (`ConfigError`, one line) a wheelhouse that cannot install the lock of ``source`` on
+    this machine: a package missing, or a file that is not one the lock lists."""
+    with tempfile.TemporaryDirectory(prefix="icefloe-lock-") as tmp:
+        folder = lock_of(source, Path(tmp))
+        if folder is None:
+            raise ConfigError(f"--wheelhouse: {source} is a pip requirement, which carries no lock to check "
+                              "the wheelhouse against: give a wheel file or a checkout")
+        locked = lock.pins([f.stem for f in lock_files(folder, extras)], directory=folder)
+        problems = lock.wheelhouse_problems(wheelhouse, locked)
+    if problems:
+        more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
+        raise ConfigError(f"--wheelhouse {wheelhouse}: does not match the lock ({lock.this_machine()}): "
+                          + "; ".join(problems[:3]) + more)
+
+
+def install_venv(source: str, extras: str, manifest: Manifest, wheelhouse: str = "") -> bool:
+    """`VENV` with icefloe[extras] from ``source`` (a checkout, a wheel, a requirement), once per source:
+    every dependency at the lock's version, each file's hash checked (from ``wheelhouse`` only, if given)."""
     changed = make_dir(PREFIX, manifest, kind="tree")
     if not PYTHON.exists():
         run(base_python(), "-m", "venv", "--system-site-packages", VENV)
@@ -363,6 +411,9 @@ def install_venv(source: str, extras: str, manifest: Manifest) -> bool:
     if stamp.exists():
         print(f"  {VENV} holds this icefloe already ({stamp.name})", flush=True)
         return changed
+    pip = [PYTHON, "-m", "pip", "install", "--no-warn-script-location"]
+    if wheelhouse:
+        pip += ["--no-index", "--find-links", wheelhouse]
     with tempfile.TemporaryDirectory(prefix="icefloe-install-") as tmp:
         target = source
         if Path(source).is_dir():
@@ -376,9 +427,16 @@ def install_venv(source: str, extras: str, manifest: Manifest) -> bool:
                 elif src.is_file():
                     Path(target).mkdir(parents=True, exist_ok=True)
                     shutil.copy2(src, Path(target) / part)
-        # a checkout or a wheel file get the extras; a requirement (a name, a URL) is the caller's to write
-        spec = f"{target}[{extras}]" if Path(source).exists() else source
-        run(PYTHON, "-m", "pip", "install", "--no-warn-script-location", "--upgrade", spec, quiet=True)
+        folder = lock_of(source, Path(tmp) / "lock")
+        if folder is None:
+            # a requirement (a name, a URL) is the caller's to write, extras and all
+            print(f"  {source} is a pip requirement: it carries no lock, so pip takes the newest versions "
+                  "within its ranges (icefloe doctor names what differs from the lock)", flush=True)
+            run(*pip, "--upgrade", source, quiet=True)
+        else:
+            for requirements in lock_files(folder, extras):
+                run(*pip, "--require-hashes", "-r", requirements, quiet=True)
+            run(*pip, "--no-deps", "--no-build-isolation", "--force-reinstall", target, quiet=True)
     for old in VENV.glob(".icefloe-*"):
         old.unlink()
     stamp.touch()
@@ -546,6 +604,8 @@ class Options:
     source: str = ""
     """What to install into the venv: a checkout (default: the one running), a wheel, a requirement."""
     extras: str = "robot"
+    wheelhouse: str = ""
+    """A folder of wheels to install from, with nothing downloaded (``--wheelhouse``): checked against the lock."""
 
 
 def install_plan(config: RobotConfig, config_path: Path, options: Options | None = None) -> list[Action]:
@@ -564,13 +624,13 @@ def install_plan(config: RobotConfig, config_path: Path, options: Options | None
                step=lambda m: install_apt(required, wanted, m),
                detail=f"apt-get install {' '.join(required)} (unless installed){want}"),
         Action(f"icefloe in its own venv, readable by {USER} (system site packages: apt's picamera2, spidev)",
-               step=lambda m: install_venv(source, o.extras, m), on_change=restart.set,
+               step=lambda m: install_venv(source, o.extras, m, o.wheelhouse), on_change=restart.set,
                detail=f"{base_python()} -m venv --system-site-packages {VENV}\n"
-                      f"{PYTHON} -m pip install "
-                      + (f"'{source}[{o.extras}]' (a copy; not editable)\n" if source else
+                      + (f"{PYTHON} -m pip install --require-hashes -r <the lock of {source}: build.txt, then "
+                         f"{o.extras}.txt>" + (f" --no-index --find-links {o.wheelhouse}" if o.wheelhouse else "")
+                         + f"\n{PYTHON} -m pip install --no-deps '{source}' (a copy; not editable)\n" if source else
                          "<--source: this icefloe is not a checkout>\n")
-                      +
-                      f"skipped when {VENV}/.icefloe-{o.extras}-<digest of the source> exists"),
+                      + f"skipped when {VENV}/.icefloe-{o.extras}-<digest of the source> exists"),
     ]
     plan += [Action(f"group {g}", step=lambda m, g=g: ensure_group(g, m),
                     detail=f"groupadd --system {g} (unless it exists)") for g in GROUPS]
@@ -722,6 +782,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--source", default="",
                    help="what to install into /opt/icefloe/venv: a checkout (default: this one), a wheel, "
                         "or a pip requirement")
+    p.add_argument("--wheelhouse", default="", metavar="DIR",
+                   help="install: every package from this folder of wheels, nothing downloaded (a lab without "
+                        "internet); refused unless it holds the lock's file of each")
     p.add_argument("--purge", action="store_true", help="remove: the robot's credentials file too")
     args = p.parse_args(argv)
     try:
@@ -734,7 +797,11 @@ def main(argv: list[str] | None = None) -> int:
             if not args.dry_run and not (args.source or checkout()):
                 raise ConfigError("this icefloe is not a checkout: say what to put into "
                                   f"{VENV} with --source (a wheel file, a pip requirement, a checkout)")
-            plan = install_plan(cfg, path, Options(args.host, not args.no_boot_config, args.source))
+            if args.wheelhouse and (args.source or checkout()):
+                args.wheelhouse = str(Path(args.wheelhouse).resolve())
+                check_wheelhouse(args.source or str(checkout()), Options.extras, Path(args.wheelhouse))
+            plan = install_plan(cfg, path, Options(args.host, not args.no_boot_config, args.source,
+                                                   wheelhouse=args.wheelhouse))
             manifest = Manifest.load() if MANIFEST.exists() else Manifest()
         else:
             manifest = Manifest.load()

@@ -12,6 +12,9 @@ Over the bus (on the robot, or from a laptop with ``--connect``/``--credentials`
 * the camera delivering frames (``camera/landmarks``, one per frame), the battery (``power/battery``);
 * the clock: not 1970, and the robot's stamps against this machine's clock.
 
+On this machine (the robot, or the laptop running doctor): every installed package at the lock's
+version (`icefloe.lock`: one line each, naming the package, the lock's version and the installed one).
+
 On the robot only (no ``--connect``): the devices the config names (serial port, SPI, I2C, GPIO,
 camera) present and usable by the services' user (``icefloe`` where it exists), and the
 credentials file private to that user. From a laptop, or for a simulated board, the local
@@ -35,6 +38,7 @@ from typing import Any
 import msgspec
 
 from .. import config as config_mod
+from .. import lock
 from ..config import RobotConfig
 from ..deploy import USER as SERVICES_USER
 from ..errors import ConfigError, IcefloeError, NotReachable
@@ -232,8 +236,24 @@ def check_clock(report: Report) -> None:
                                "it was never set (no network time yet?): timedatectl")
 
 
+def check_lock(report: Report) -> None:
+    """Every installed package the lock knows at the lock's version; icefloe's own dependencies there."""
+    try:
+        locked = lock.pins()
+        drifted = lock.drift(locked, lock.installed(), required=lock.base_requirements())
+    except lock.LockError as exc:
+        report.problems.append(f"lock: {exc}")
+        return
+    again = f"{sys.executable} -m pip install --require-hashes -r {lock.folder()}/<extra>.txt (deploy/up.sh does)"
+    for d in drifted:
+        report.problems.append(f"package {d}: the lock's versions are what icefloe is tested with: {again}")
+    if not drifted:
+        report.facts.append(f"{len(locked)} packages as locked")
+
+
 def local_checks(args: argparse.Namespace, config: RobotConfig, remote: bool, report: Report) -> None:
     check_clock(report)
+    check_lock(report)
     if args.credentials:
         check_own_copy(args.credentials, report)
     if remote:
