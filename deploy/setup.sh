@@ -37,7 +37,7 @@ ensure_venv() {
     if [ "$extras" = planner ] && compgen -G ".venv/.icefloe-*" >/dev/null; then
         return 0  # any install of icefloe plans a robot install too
     fi
-    [ -e "$stamp" ] && return 0
+    [ -e "$stamp" ] && [ "${ICEFLOE_UNLOCKED:-0}" != 1 ] && return 0   # the newest: asked again each run
     local pip=(.venv/bin/python -m pip install --quiet)
     if [ "$locked" = 1 ]; then
         echo "== installing icefloe[$extras] into .venv, as locked ($lock/$extras.txt; first run takes a few minutes)"

@@ -32,6 +32,11 @@ from .errors import IcefloeError
 HASH = re.compile(r"--hash=sha256:([0-9a-f]{64})")
 
 
+TOOLS = ("build",)
+"""Exports of what installs icefloe (pip, setuptools), not of what it runs with: a venv made by
+hand keeps its own pip, and that is no drift (`runtime_pins`)."""
+
+
 class LockError(IcefloeError):
     """The lock, or something checked against it, is not as it must be (the message says which)."""
 
@@ -108,6 +113,11 @@ def pins(names: Iterable[str] | None = None, environment: Mapping[str, str] | No
                                 f"({out[pin.name].version} and {pin.version}): run tools/lock.py")
             out[pin.name] = pin
     return out
+
+
+def runtime_pins() -> dict[str, Pin]:
+    """The lock's pins on this machine for what icefloe runs with (every export but `TOOLS`)."""
+    return pins(sorted(p.stem for p in folder().glob("*.txt") if p.stem not in TOOLS))
 
 
 def environment(machine: str, python: str = "3.11") -> dict[str, str]:
@@ -198,9 +208,64 @@ def this_machine() -> str:
     return f"{platform.system()} {platform.machine()}, Python {platform.python_version()}"
 
 
-def main() -> int:
-    """``python -m icefloe.lock``: print each installed package that differs from the lock; 1 if any."""
-    drifted = drift(pins(), installed(), required=base_requirements())
+ROBOT_EXPORTS = ("build", "planner", "robot")
+"""What a robot install takes from the lock: pip and setuptools, what plans it, the robot's extra."""
+GLIBC = 36
+"""The C library of Debian and Raspberry Pi OS bookworm (2.36): the newest manylinux a robot's wheel may need."""
+
+
+def download_wheelhouse(directory: Path, machine: str, python: str = "3.11",
+                        names: Iterable[str] = ROBOT_EXPORTS) -> list[str]:
+    """Download into ``directory`` the lock's file of every package a robot of ``machine`` installs
+    (wheels only: nothing is built for another machine), and return `wheelhouse_problems` (empty: it
+    is complete). pip evaluates a requirement's markers for the machine it runs on, not for
+    ``--platform``: so they are evaluated here, and pip gets exact pins with their hashes."""
+    import subprocess
+    import tempfile
+
+    chosen = pins(names, environment(machine, python))
+    tag = python.replace(".", "")
+    platforms = [f"--platform=manylinux_2_{m}_{machine}" for m in range(GLIBC, 16, -1)]
+    with tempfile.NamedTemporaryFile("w", suffix=".txt") as requirements:
+        requirements.write("".join(f"{pin.requirement()}\n" for _, pin in sorted(chosen.items())))
+        requirements.flush()
+        r = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--require-hashes",
+                            "-r", requirements.name, "--dest", str(directory), "--only-binary=:all:", *platforms,
+                            f"--platform=manylinux2014_{machine}", f"--python-version={python}",
+                            "--implementation=cp", f"--abi=cp{tag}"], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise LockError(f"pip download for {machine}, Python {python}: "
+                        + next((line for line in r.stderr.splitlines() if line.startswith("ERROR")), r.stderr[-300:]))
+    return wheelhouse_problems(directory, {n: p for n, p in chosen.items() if n not in APT})
+
+
+APT = {"spidev"}
+"""Packages a robot takes from apt, not from a wheelhouse (PyPI has only their source)."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m icefloe.lock", description=(
+        "Print each installed package that differs from the lock (exit 1 if any); or, with --wheelhouse, "
+        "download the lock's files of a robot's packages, for installing robots with nothing downloaded."))
+    parser.add_argument("--wheelhouse", metavar="DIR",
+                        help="download into DIR the lock's wheel of every package a robot installs "
+                             "(./deploy/up.sh ROBOT --wheelhouse=DIR installs from it)")
+    parser.add_argument("--machine", default="aarch64", choices=("aarch64", "x86_64"),
+                        help="with --wheelhouse: the robots' machine (default aarch64, a Raspberry Pi)")
+    parser.add_argument("--python", default="3.11", help="with --wheelhouse: the robots' Python (bookworm: 3.11)")
+    args = parser.parse_args(argv)
+    if args.wheelhouse:
+        directory = Path(args.wheelhouse).expanduser()
+        directory.mkdir(parents=True, exist_ok=True)
+        problems = download_wheelhouse(directory, args.machine, args.python)
+        for line in problems:
+            print(line, file=sys.stderr)
+        print(f"{directory}: {'INCOMPLETE' if problems else 'the lock of'} a robot's packages for Linux "
+              f"{args.machine}, Python {args.python}")
+        return 1 if problems else 0
+    drifted = drift(runtime_pins(), installed(), required=base_requirements())
     for d in drifted:
         print(d)
     print(f"{len(drifted)} of the installed packages differ from the lock ({this_machine()})"

@@ -42,6 +42,9 @@ def encode_json(message: Message) -> bytes:
     return msgspec.json.encode(message)
 
 
+KIND_NAMES = {"msgpack": "MessagePack", "json": "JSON"}
+
+
 def _kind(encoding: str, payload: bytes) -> str:
     base = encoding.split(";", 1)[0].strip()
     if base == MSGPACK:
@@ -71,12 +74,13 @@ def decode(payload: bytes, encoding: str, type_: type[T], key: str = "payload") 
             if decoder is None:
                 decoder = _msgpack_decoders[type_] = msgspec.msgpack.Decoder(type_)
         return decoder.decode(payload)
-    except msgspec.ValidationError as exc:
+    except msgspec.ValidationError as exc:  # well-formed, but a field is missing, of a wrong type or out of range
         raise BadPayload(f"{key}: {exc}") from None
-    except msgspec.DecodeError as exc:
-        raise BadPayload(f"{key}: not valid {kind}: {exc}") from None
-    except UnicodeDecodeError as exc:  # msgspec raises it for a string that is not UTF-8
-        raise BadPayload(f"{key}: a string is not valid UTF-8 ({exc.reason} at byte {exc.start})") from None
+    except (msgspec.DecodeError, UnicodeDecodeError) as exc:
+        # Not well-formed: truncated, garbage, or a string that is not UTF-8 (msgspec < 0.23 raised
+        # UnicodeDecodeError for that, 0.23 a DecodeError). Our words say which; the library's, in
+        # parentheses, say where, and are not read by anything.
+        raise BadPayload(f"{key}: not valid {KIND_NAMES[kind]} ({exc})") from None
 
 
 def to_builtins(payload: bytes, encoding: str) -> object:

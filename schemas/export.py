@@ -4,12 +4,16 @@ Run ``icefloe schemas`` after changing ``messages.py``; a test fails while the
 checked-in files are stale (``icefloe schemas --check``).
 
 The field docstrings of ``messages.py`` become each property's ``description``,
-and each schema names the keys that carry its message (``x-icefloe-keys``).
+and each schema names the keys that carry its message (``x-icefloe-keys``) and the
+msgspec that wrote it (``$comment``): msgspec's releases write schemas differently
+(0.23 did), so the checked-in files are made with the lock's msgspec, and a check
+that fails says which msgspec made them.
 """
 
 from __future__ import annotations
 
 import ast
+import contextlib
 import functools
 import inspect
 import itertools
@@ -21,6 +25,8 @@ import msgspec
 from . import keys, messages
 
 JSON_DIR = Path(__file__).resolve().parent / "json"
+MADE_BY = f"made by icefloe schemas with msgspec {msgspec.__version__}"
+"""Every schema's ``$comment``."""
 
 
 def message_types() -> list[type[messages.Message]]:
@@ -66,6 +72,7 @@ def schemas() -> dict[str, str]:
                 if doc and "description" not in prop:
                     prop["description"] = doc
         schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+        schema["$comment"] = MADE_BY
         schema["title"] = t.__name__
         schema["x-icefloe-keys"] = carried.get(t.__name__, [])
         out[f"{t.__name__}.json"] = json.dumps(schema, indent=2, sort_keys=True) + "\n"
@@ -79,6 +86,17 @@ def stale(directory: Path = JSON_DIR) -> list[str]:
     wrong = [n for n, text in want.items() if not (directory / n).exists()
              or (directory / n).read_text() != text]
     return sorted(wrong + [n for n in have - set(want)])
+
+
+def made_by(directory: Path = JSON_DIR) -> set[str]:
+    """What the files in ``directory`` say made them (their ``$comment``; "unknown" if none)."""
+    out = set()
+    for path in directory.glob("*.json"):
+        comment = "unknown"
+        with contextlib.suppress(ValueError, AttributeError):
+            comment = json.loads(path.read_text()).get("$comment", "unknown")
+        out.add(comment)
+    return out
 
 
 def write(directory: Path = JSON_DIR) -> list[str]:

@@ -1,9 +1,31 @@
 #!/usr/bin/env bash
 # Set up (first run) and run the whole test suite: ./tests/run.sh [pytest arguments]
+#   ./tests/run.sh --newest [pytest arguments]   the same suite against the newest release of every
+#       dependency within pyproject.toml's ranges, in a copy of this checkout: what the next refresh of
+#       the lock (tools/lock.py --upgrade) would break. It changes neither the lock nor .venv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+if [ "${1:-}" = --newest ]; then
+    shift
+    copy="${ICEFLOE_NEWEST_DIR:-/var/tmp/icefloe-newest-$(id -u)}"
+    echo "== the suite against the newest versions, in a copy of this checkout: $copy (the lock is not changed)"
+    mkdir -p "$copy"
+    find "$copy" -mindepth 1 -maxdepth 1 ! -name .venv -exec rm -rf {} +   # its venv is kept: pip's cache
+    tar --exclude=./.venv --exclude='__pycache__' --exclude=./.pytest_cache -cf - . | tar -xf - -C "$copy"
+    status=0
+    (cd "$copy" && ICEFLOE_UNLOCKED=1 ICEFLOE_BOX=0 ./tests/run.sh "$@") || status=$?
+    echo "== the newest versions against the lock (what tools/lock.py --upgrade would change):"
+    "$copy/.venv/bin/python" -m icefloe.lock || true
+    [ "$status" = 0 ] && echo "== the newest versions pass the suite: refresh the lock (docs/DEVELOPING.md)" \
+        || echo "== the newest versions fail the suite (exit $status): see above before refreshing the lock"
+    exit "$status"
+fi
 . deploy/setup.sh
 ensure_venv dev
+if [ "${ICEFLOE_UNLOCKED:-0}" = 1 ]; then
+    echo "== the newest versions within pyproject.toml's ranges, against the lock:"
+    .venv/bin/python -m icefloe.lock || true
+fi
 ensure_apt Xvfb xvfb mesa-vulkan-drivers   # a display for the Rerun viewer tests and the screenshot
 ensure_apt chromium chromium   # a real browser for the robot's page (tests/test_webapi_page.py, Playwright drives it)
 # MessagePack for C and C++: the message code of examples/c and examples/cpp (tests/test_other_languages.py)

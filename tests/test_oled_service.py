@@ -97,7 +97,7 @@ async def test_text_buttons_errors_and_the_penguinpi_sink(robot: Robot) -> None:
         say.put(m.OledText(text="x" * 5000))
         node.session.put(node.key(keys.OLED_TEXT), b"\x81\xa4text\xa2\xff\xfe", encoding=MSGPACK)
         await wait_for(lambda: viewer.logged("5000 characters, more than 1024; dropped"))
-        await wait_for(lambda: viewer.logged("is not valid UTF-8"))
+        await wait_for(lambda: viewer.logged(f"{node.key(keys.OLED_TEXT)}: not valid MessagePack"))
         say.put(m.OledText(text="\fstill here"))  # ... and the service still works
         terminal.write("\fstill here")
         await viewer.shows(render(1, Status(terminal=terminal)))

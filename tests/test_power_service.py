@@ -281,9 +281,10 @@ async def test_bad_battery_readings_are_logged_and_ignored(make_robot: Any,
         await tester.reading(7.4)
         node.publisher(keys.HW_BATTERY).put(m.BatteryReading(stamp=1, voltage=-3.0, current=0.0))
         await wait_for(lambda: any("outside 0..30 V" in lg.text for lg in tester.logs), timeout=15)
-        # A map key that is not UTF-8 (msgspec raises UnicodeDecodeError for it).
+        # A map key that is not UTF-8: not valid MessagePack, in the runtime's words.
         node.session.put(node.key(keys.HW_BATTERY), b"\x81\xa2\xff\xfe\x01", encoding=MSGPACK)
-        await wait_for(lambda: any("not valid UTF-8" in lg.text for lg in tester.logs), timeout=15)
+        bad = f"{node.key(keys.HW_BATTERY)}: not valid MessagePack"
+        await wait_for(lambda: any(bad in lg.text for lg in tester.logs), timeout=15)
         assert (await tester.reading(7.3)).state == "ok"  # still running, still filtering
         assert all(b.stamp != 1 for b in tester.battery)
         assert power.stop() == 0

@@ -59,11 +59,11 @@ BAD = [
     (b'{"v": "fast", "w": 0}', "application/json", "$.v"),
     (b'{"v": 1}', "application/json", "`w`"),
     (b'{"v": 1, "w": 0, "x": 2}', "application/json", "`x`"),
-    (codec.encode(m.Twist(v=1.0, w=2.0))[:-4], "application/msgpack", "truncated"),
+    (codec.encode(m.Twist(v=1.0, w=2.0))[:-4], "application/msgpack", "not valid MessagePack"),  # truncated
     (msgspec.msgpack.encode({"v": math.nan, "w": 0.0}), "application/msgpack", "`v` must be a finite"),
     (msgspec.msgpack.encode({"v": math.inf, "w": 0.0}), "application/msgpack", "`v` must be a finite"),
     (b'{"v": 1, "w": 0}', "text/plain", "unknown encoding 'text/plain'"),
-    (b"\xc1", "application/msgpack", "not valid msgpack"),
+    (b"\xc1", "application/msgpack", "not valid MessagePack"),
 ]
 
 
@@ -84,8 +84,27 @@ def test_messages_are_frozen_and_reject_nan_on_construction() -> None:
 
 
 def test_a_string_that_is_not_utf8_is_a_bad_payload_not_a_crash() -> None:
+    """Our words, whatever msgspec says: msgspec < 0.23 raised UnicodeDecodeError for such a string,
+    0.23 a DecodeError worded its own way; both are a payload that is not valid MessagePack."""
     payload = b"\x81\xa4text\xa2\xff\xfe"  # {"text": <2 bytes that are not UTF-8>}
-    with pytest.raises(BadPayload, match="icefloe/sim/oled/text: a string is not valid UTF-8"):
+    with pytest.raises(BadPayload, match=r"^icefloe/sim/oled/text: not valid MessagePack "):
         codec.decode(payload, codec.MSGPACK, m.OledText, "icefloe/sim/oled/text")
-    with pytest.raises(BadPayload, match="not valid UTF-8"):
+    with pytest.raises(BadPayload, match=r"^icefloe/sim/oled/text: not valid JSON "):
         codec.decode(b'{"text": "\xff"}', codec.JSON, m.OledText, "icefloe/sim/oled/text")
+
+
+@pytest.mark.parametrize("raised", [UnicodeDecodeError("utf-8", b"\xff", 0, 1, "invalid start byte"),
+                                    msgspec.DecodeError("a text of the library's own")])
+def test_either_error_kind_of_a_bad_string_is_a_bad_payload(raised: Exception, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Both kinds msgspec has raised for a string that is not UTF-8, whatever their words."""
+
+    class Decoder:
+        def __init__(self, type_: type) -> None: ...
+
+        def decode(self, payload: bytes) -> None:
+            raise raised
+
+    monkeypatch.setattr(codec, "_msgpack_decoders", {})
+    monkeypatch.setattr(codec.msgspec.msgpack, "Decoder", Decoder)
+    with pytest.raises(BadPayload, match=r"^icefloe/sim/oled/text: not valid MessagePack "):
+        codec.decode(b"\x81", codec.MSGPACK, m.OledText, "icefloe/sim/oled/text")

@@ -109,7 +109,7 @@ async def test_viz_draws_the_grid_service_s_grid_and_refuses_a_bad_one_on_anothe
             await wait_for(lambda: viz.output.count("showing robot") >= 2, timeout=60)
             mine = keys.key(robot.name, keys.MAP_GRID)
             await wait_for(lambda: f"{mine}: drew the occupancy grid of world 'lab'" in viz.output, timeout=60)
-            for expected in ("not valid msgpack", "field `cells` has 12 bytes, not `width` x `height` = 7 x 3",
+            for expected in ("not valid MessagePack", "field `cells` has 12 bytes, not `width` x `height` = 7 x 3",
                              f"fields `width` x `height`: 2001 x 2001 cells (4004001 bytes in `cells`), "
                              f"more than the {MAX_CELLS} cells"):
                 await wait_for(lambda e=expected: f"{other_key}: dropped" in viz.output and e in viz.output,

@@ -69,7 +69,7 @@ async def test_put_publishes_checked_json_and_refuses_the_rest(robot):
             ('{"v": 0.1}', "Object missing required field `w`"),
             ('{"v": 0.1, "w": 0, "turbo": true}', "unknown field `turbo`"),
             ('{"v": 1e999, "w": 0}', "$.v"),
-            ("v=0.1&w=0", "not valid json"),
+            ("v=0.1&w=0", "not valid JSON"),
             ("[0.1, 0]", "Expected `object`, got `array`"),
         ]
         for body, message in refused:

@@ -289,7 +289,7 @@ async def test_bad_bus_payloads_are_dropped_and_the_service_goes_on(robot):
         await read_all()
         bad = {"io/dip": (b'{"value": "nine"}', "Expected `int`, got `str`"),
                "io/buttons": (b'{"button": 3, "x": 1}', "Object contains unknown field `x`"),
-               "hw/wheels": (b"{not json", "not valid json"),
+               "hw/wheels": (b"{not json", "not valid JSON"),
                "odom/pose": (b'{"stamp": 0}', "Object missing required field `x`")}
 
         def missing() -> list[str]:

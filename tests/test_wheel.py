@@ -4,8 +4,10 @@ outside any checkout, and run from a folder that has no checkout.
 * Every file of the package folders is in the wheel (robot configs, worlds, the ACL template,
   JSON Schemas, systemd templates, a service's ``static/`` files), or is named below as a file
   only a checkout needs.
-* Installed with its dependencies and the ``viz`` extra (from the package registry; pip's cache
-  where it has one): ``icefloe up`` runs the simulated robot (a user's own ``sim.toml`` in
+* It installs with ranges (a library must not pin); installed as the README says, with the lock's
+  versions of the ``viz`` extra that it carries (from the package registry; pip's cache where it
+  has one), nothing differs from the lock, and ``icefloe doctor`` names a package installed at
+  another version. ``icefloe up`` runs the simulated robot (a user's own ``sim.toml`` in
   ``~/.config/icefloe/robots/`` overrides the shipped one by name), ``icefloe viz --connect``
   records it, Ctrl-C stops everything; ``icefloe router --lab DIR`` guards a lab.
 """
@@ -25,6 +27,7 @@ from pathlib import Path
 
 import pytest
 from conftest import ROOT, free_port, processes_naming
+from packaging.requirements import Requirement
 
 NOT_SHIPPED = {
     "deploy/up.sh": "sets up and runs a checkout's .venv",
@@ -83,6 +86,13 @@ def test_the_wheel_holds_every_file_a_user_needs(wheel: Path) -> None:
                     "icefloe/schemas/json/Pose.json"):
         assert shipped in inside
     assert not [n for n in inside if n.startswith(("tests/", "bench/", "examples/", "docs/"))]
+    # the lock travels with the wheel, and the wheel itself asks for ranges, not the lock's pins
+    assert {f"icefloe/share/requirements/{e}.txt" for e in ("base", "viz", "robot", "build")} <= inside
+    metadata = next(n for n in inside if n.endswith(".dist-info/METADATA"))
+    requires = [Requirement(line.removeprefix("Requires-Dist:"))
+                for line in zipfile.ZipFile(wheel).read(metadata).decode().splitlines()
+                if line.startswith("Requires-Dist:")]
+    assert requires and not [r for r in requires if any(s.operator in ("==", "===") for s in r.specifier)]
 
 
 # ---------------------------------------------------------------------------- installed, and run
@@ -131,20 +141,50 @@ def stop(proc: subprocess.Popen[bytes], timeout: float = 30.0) -> int:
         raise AssertionError(f"did not exit within {timeout:.0f} s of SIGINT") from None
 
 
+def pip(venv: Path, *args: str) -> None:
+    """This interpreter's pip, installing into ``venv`` (``--python``): a venv needs no pip of its own."""
+    res = subprocess.run([sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), *args],
+                         capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+def locked_viz(venv: Path) -> Path:
+    """The lock's ``viz`` export as the installed wheel carries it (the README's second pip command)."""
+    return next(venv.glob("lib/python3*/site-packages/icefloe/share/requirements/viz.txt"))
+
+
 @pytest.fixture(scope="module")
 def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory):
-    """The wheel and its dependencies with ``[viz]`` in a new venv (removed afterwards: ~1 GB)."""
+    """The wheel, then the lock's versions of its dependencies with ``[viz]``, in a new venv, as the
+    README says (removed afterwards: ~1 GB)."""
     tmp = tmp_path_factory.mktemp("installed")
     venv = tmp / "venv"
     t0 = time.monotonic()
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
-    # This interpreter's pip installs into the new venv (``--python``): a venv needs no pip of its own.
-    res = subprocess.run([sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), "install", "-q",
-                          f"{wheel}[viz]"], capture_output=True, text=True, timeout=900)
-    assert res.returncode == 0, res.stdout + res.stderr
-    print(f"venv and install of {wheel.name}[viz] with its dependencies: {time.monotonic() - t0:.1f} s")
+    pip(venv, "install", "-q", "--no-deps", str(wheel))
+    pip(venv, "install", "-q", "--require-hashes", "-r", str(locked_viz(venv)))
+    print(f"venv and install of {wheel.name} with the lock's [viz]: {time.monotonic() - t0:.1f} s")
     yield Installed(venv, tmp / "home")
     shutil.rmtree(venv, ignore_errors=True)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)  # with the venv and the install, if it runs alone
+def test_installed_as_locked_and_doctor_names_a_package_at_another_version(installed: Installed) -> None:
+    assert installed.run("python", "-m", "icefloe.lock").stdout.startswith("every installed package is as locked")
+    nowhere = f"tcp/127.0.0.1:{free_port()}"   # no robot: doctor's bus checks fail fast, its local ones run
+    pip(installed.venv, "install", "-q", "--no-deps", "pyserial==3.4")
+    try:
+        doctor = installed.run("icefloe", "doctor", "--connect", nowhere, check=False, timeout=60)
+        assert doctor.returncode == 1
+        lines = [line for line in doctor.stdout.splitlines() if line.startswith("package ")]
+        assert len(lines) == 1 and lines[0].startswith("package pyserial: lock 3.5, installed 3.4: "), doctor.stdout
+        assert installed.run("python", "-m", "icefloe.lock", check=False).stdout.splitlines()[0] == \
+            "pyserial: lock 3.5, installed 3.4"
+    finally:   # put the lock's back, as doctor's line says
+        pip(installed.venv, "install", "-q", "--require-hashes", "-r", str(locked_viz(installed.venv)))
+    doctor = installed.run("icefloe", "doctor", "--connect", nowhere, check=False, timeout=60)
+    assert not [line for line in doctor.stdout.splitlines() if line.startswith("package ")], doctor.stdout
 
 
 @pytest.mark.slow

@@ -3,6 +3,7 @@
     .venv/bin/python tools/lock.py              after editing pyproject.toml's dependencies: the lock
                                                 follows, changing no version it need not change
     .venv/bin/python tools/lock.py --upgrade    every package to its newest release within the ranges
+    .venv/bin/python tools/lock.py --upgrade-package NAME   that one package to its newest (a security fix)
     .venv/bin/python tools/lock.py --check      exit 1 if uv.lock or an export is not what it should
                                                 be (no network; tests/test_lock.py runs it)
 
@@ -84,11 +85,14 @@ def main() -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--upgrade", action="store_true", help="take every package's newest release within the ranges")
+    what.add_argument("--upgrade-package", metavar="NAME", action="append", default=[],
+                      help="take this package's newest release within the ranges (repeat for more)")
     what.add_argument("--check", action="store_true", help="change nothing: exit 1 if the lock or an export is stale")
     args = parser.parse_args()
     if args.check:
         return check()
-    r = uv("lock", *(["--upgrade"] if args.upgrade else []))
+    upgrade = ["--upgrade"] if args.upgrade else [a for n in args.upgrade_package for a in ("--upgrade-package", n)]
+    r = uv("lock", *upgrade)
     if r.returncode != 0:
         return r.returncode
     (ROOT / OUT).mkdir(parents=True, exist_ok=True)

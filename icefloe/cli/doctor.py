@@ -239,7 +239,7 @@ def check_clock(report: Report) -> None:
 def check_lock(report: Report) -> None:
     """Every installed package the lock knows at the lock's version; icefloe's own dependencies there."""
     try:
-        locked = lock.pins()
+        locked = lock.runtime_pins()
         drifted = lock.drift(locked, lock.installed(), required=lock.base_requirements())
     except lock.LockError as exc:
         report.problems.append(f"lock: {exc}")

@@ -13,6 +13,10 @@ def schemas(args: argparse.Namespace) -> int:
         bad = export.stale()
         for name in bad:
             print(f"stale: schemas/json/{name} (run `icefloe schemas`)")
+        if bad:
+            made = ", ".join(sorted(export.made_by())) or "nothing"
+            print(f"{len(bad)} stale: the checked-in schemas say {made!r}; this is {export.MADE_BY.split(' with ')[1]}"
+                  " (the lock's msgspec makes them: deploy/requirements)")
         return 1 if bad else 0
     out = Path(args.out) if args.out else export.JSON_DIR
     print(f"wrote {len(export.write(out))} schemas to {out}")

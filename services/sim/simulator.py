@@ -65,7 +65,7 @@ def _icoboard_model(config: RobotConfig, world: World) -> BoardModel | None:
         from icefloe.sim.icoboard_gateware import GatewareBoardModel
     except ImportError as exc:  # a restart cannot help: ConfigError (exit 78), not a crash
         raise ConfigError(f'{config.source}: sim.icoboard = "gateware" needs the gateware extra ({exc}): '
-                          "pip install -e '.[gateware]'") from None
+                          "pip install --require-hashes -r deploy/requirements/gateware.txt") from None
     return GatewareBoardModel(world, config.board, clk_hz=config.sim.gateware_clk_hz, seed=world.seed)
 
 
