@@ -253,7 +253,6 @@ def check_lock(report: Report) -> None:
 
 def local_checks(args: argparse.Namespace, config: RobotConfig, remote: bool, report: Report) -> None:
     check_clock(report)
-    check_lock(report)
     if args.credentials:
         check_own_copy(args.credentials, report)
     if remote:
@@ -481,6 +480,7 @@ def doctor(args: argparse.Namespace) -> int:
         report = Report()
         local_checks(args, config, remote, report)
         answered = bounded(config, robot, remote, report)
+        check_lock(report)   # this machine's packages: the robot's own, or the laptop's
         if not report.problems or not answered or time.monotonic() + WAIT_ROUND_S > give_up:
             break
         time.sleep(WAIT_ROUND_S)  # --wait: a robot still starting (after a reboot, an install)
