@@ -91,10 +91,10 @@ def children(config: Path) -> dict[str, list[int]]:
         if not entry.name.isdigit():
             continue
         try:
-            cmd = (entry / "cmdline").read_bytes().split(b"\0")
+            # (a service the fork server started has set its title as one string, spaces between)
+            text = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode().split()
         except OSError:
             continue
-        text = [c.decode() for c in cmd]
         if str(config) in text and "-m" in text:
             module = text[text.index("-m") + 1]
             name = module.rsplit(".", 1)[-1] if module != "icefloe.cli" else "launcher"

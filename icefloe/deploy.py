@@ -48,12 +48,14 @@ from .errors import ConfigError
 SYSTEMD_TEMPLATES = paths.packaged("systemd")
 UNIT_DIR = Path("/etc/systemd/system")
 USER = "icefloe"
-SERVICE_ENV = {"PYTHONUNBUFFERED": "1", "MALLOC_ARENA_MAX": "2"}
+SERVICE_ENV = {"PYTHONUNBUFFERED": "1", "MALLOC_ARENA_MAX": "2", "OPENBLAS_NUM_THREADS": "1"}
 """The environment of icefloe's own processes, from systemd (``Environment=`` of each unit) and from
 `icefloe up` alike. ``MALLOC_ARENA_MAX``: glibc gives each thread that allocates an arena of its
 own, up to eight per core, and keeps what it grew: 4,000 camera queries, 32 at a time (worker
 threads encoding frames), left the camera 8.4 MiB larger with glibc's default, 3.3 with two
-(docs/hostile-input.md)."""
+(docs/hostile-input.md). ``OPENBLAS_NUM_THREADS``: NumPy's and OpenCV's BLAS start a thread per
+core when imported, each with its buffers, for matrices of a few rows; with one, the fork server
+(`icefloe.forkserver`) has no thread when it forks."""
 USER_HOME = Path("/var/lib/icefloe")
 GROUPS = ("dialout", "spi", "i2c", "gpio", "video")
 PREFIX = Path("/opt/icefloe")
@@ -475,7 +477,7 @@ def units(config: RobotConfig, config_path: Path, python: str | os.PathLike[str]
     """Unit file name -> content, from the templates in deploy/systemd/."""
     cpu = rt_cpu(config)
     values = {"robot": config.name, "user": USER, "python": str(python), "config": str(config_path),
-              "cpu": str(cpu), "cpus": str(cpu),
+              "cpu": str(cpu), "cpus": str(cpu), "socket": str(config.runtime_dir / "forkserver.sock"),
               "environment": " ".join(f"{key}={value}" for key, value in SERVICE_ENV.items())}
     out = {}
     for template in sorted(SYSTEMD_TEMPLATES.iterdir()):
@@ -492,7 +494,7 @@ def services_of(config: RobotConfig) -> list[str]:
 
 
 def unit_names(config: RobotConfig) -> list[str]:
-    return ["icefloe.target", "icefloe-router.service", "icefloe-hwbridge.service",
+    return ["icefloe.target", "icefloe-forkserver.service", "icefloe-router.service", "icefloe-hwbridge.service",
             *(f"icefloe@{s}.service" for s in services_of(config))]
 
 

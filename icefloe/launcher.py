@@ -6,7 +6,9 @@ real board, the files the services read. A robot that cannot run starts nothing 
 says why, one line per problem. A real board (``board.backend = "hardware"``) never
 gets the simulator.
 
-The router starts first (every service is a client of it), then the services
+The fork server starts first (`icefloe.forkserver`: it imports what every service imports,
+once, and the router and services start as copies of it, sharing those pages), then the
+router (every service is a client of it), then the services
 listed in the robot config, in order, and your own programs (``[programs.<name>]``,
 `program_environment` says what they are told). Each child's output is prefixed with its
 name. A child that dies is restarted with back-off (1 s, 2 s, 4 s ... 30 s; the
@@ -39,6 +41,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from . import config as config_mod
+from . import forkserver
 from .config import RobotConfig
 from .deploy import SERVICE_ENV
 from .errors import EXIT_CONFIG, ConfigError
@@ -108,6 +112,36 @@ def program_environment(config: RobotConfig, config_path: Path, name: str) -> di
     return env
 
 
+class Adopted:
+    """A service the fork server started, which the launcher adopted (it is a child subreaper):
+    waited for through a pidfd, as `asyncio.subprocess.Process` is through its own watcher."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self.returncode: int | None = None
+        self._exited = asyncio.get_running_loop().create_future()
+        self._pidfd = os.pidfd_open(pid)
+        asyncio.get_running_loop().add_reader(self._pidfd, self._reap)
+
+    def _reap(self) -> None:
+        with contextlib.suppress(ChildProcessError):
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid == 0:
+                return  # not yet: the pidfd says so before the kernel lets us reap it
+            self.returncode = os.waitstatus_to_exitcode(status)
+        asyncio.get_running_loop().remove_reader(self._pidfd)
+        os.close(self._pidfd)
+        if not self._exited.done():
+            self._exited.set_result(self.returncode)
+
+    async def wait(self) -> int:
+        await asyncio.shield(self._exited)
+        return self.returncode if self.returncode is not None else -1
+
+    def send_signal(self, sig: int) -> None:
+        os.kill(self.pid, sig)
+
+
 @dataclass
 class Child:
     name: str
@@ -118,7 +152,9 @@ class Child:
     program: bool = False
     """One of yours (``[programs.<name>]``): signalled as a process group."""
     restart: bool = True
-    process: asyncio.subprocess.Process | None = None
+    module: str = ""
+    """An icefloe module (the router, a service): the fork server can start it."""
+    process: asyncio.subprocess.Process | Adopted | None = None
     started: float = 0.0
     restarts: int = 0
     backoff: float = 1.0
@@ -127,22 +163,30 @@ class Child:
 
 class Launcher:
     def __init__(self, config: RobotConfig, config_path: Path, services: list[str],
-                 *, out: object = None) -> None:
-        """``services``: icefloe's own services and names of ``[programs.<name>]``, in order."""
+                 *, out: object = None, fork_server: bool = True) -> None:
+        """``services``: icefloe's own services and names of ``[programs.<name>]``, in order.
+        ``fork_server``: start icefloe's own as copies of a fork server (Linux only)."""
         self.config = config
         self.out = out or sys.stdout
         width = max([len(s) for s in services] + [6])
         self._fmt = f"[{{:<{width}}}] "
         base = [sys.executable, "-m"]
         cfg = ["--config", str(config_path)]
-        self.children = [Child("router", [*base, "icefloe.router", *cfg])]
+        self.socket: Path | None = None
+        """The fork server's socket, once it listens."""
+        self.children = []
+        if fork_server and sys.platform == "linux":
+            sock = config_mod.private_dir(config.runtime_dir) / "forkserver.sock"
+            self.children.append(Child("forkserver", [*base, "icefloe.forkserver", "serve", "--socket", str(sock)]))
+        self.children.append(Child("router", [*base, "icefloe.router", *cfg], module="icefloe.router"))
         for name in services:
             if (program := config.programs.get(name)) is not None:
                 env = {**program_environment(config, config_path, name), **program.env}
                 self.children.append(Child(name, list(program.command), env, program.cwd or None,
                                            program=True, restart=program.restart))
             else:
-                self.children.append(Child(name, [*base, f"icefloe.services.{name}", *cfg]))
+                module = f"icefloe.services.{name}"
+                self.children.append(Child(name, [*base, module, *cfg], module=module))
         self._stopping = False
         self._stop = asyncio.Event()
         self.refused: str | None = None
@@ -159,6 +203,8 @@ class Launcher:
         """Start the child's process; False (said why) if it cannot be started at all."""
         own = {"PYTHONUNBUFFERED": "1"} if child.program else SERVICE_ENV  # yours: as you set it up
         env = {**os.environ, **own, **child.env}
+        if child.module and self.socket is not None and await self._fork(child, env):
+            return True
         try:
             child.process = await asyncio.create_subprocess_exec(
                 *child.argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
@@ -173,6 +219,40 @@ class Launcher:
         assert child.process.stdout is not None
         child.pumps = [asyncio.create_task(self._pump(child, child.process.stdout))]
         return True
+
+    async def _fork(self, child: Child, env: dict[str, str]) -> bool:
+        """Start an icefloe module as a copy of the fork server, its output to us; False (said once)
+        if the server does not: the caller then starts it on its own."""
+        read, write = os.pipe()
+        try:
+            with open(os.devnull, "rb") as null:
+                req = forkserver.Request(child.module, child.argv[3:], env, adopter=os.getpid(),
+                                         adopter_death_signal=signal.SIGINT)
+                pid = await asyncio.to_thread(forkserver.request, self.socket, req, (null.fileno(), write, write))
+        except (OSError, forkserver.Refused) as exc:
+            os.close(read)
+            self.say("up", f"the fork server did not start {child.name} ({exc}): starting it on its own")
+            return False
+        finally:
+            os.close(write)
+        child.process = Adopted(pid)
+        child.started = time.monotonic()
+        reader = asyncio.StreamReader()
+        loop = asyncio.get_running_loop()
+        await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), os.fdopen(read, "rb"))
+        child.pumps = [asyncio.create_task(self._pump(child, reader))]
+        return True
+
+    async def _wait_fork_server(self, server: Child) -> None:
+        """Until the fork server listens (its socket answers), or has died: then services start on their own."""
+        sock = Path(server.argv[-1])
+        for _ in range(600):   # 30 s: importing NumPy and OpenCV on a Pi 3B takes seconds
+            if server.process is not None and server.process.returncode is not None:
+                return
+            if sock.exists():
+                self.socket = sock
+                return
+            await asyncio.sleep(0.05)
 
     async def _supervise(self, child: Child) -> None:
         while not self._stopping:
@@ -223,12 +303,20 @@ class Launcher:
         stop = self._stop
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
-        router, *services = self.children
-        tasks = [asyncio.create_task(self._supervise(router))]
+        tasks = []
+        if self.children[0].name == "forkserver":
+            with contextlib.suppress(OSError):   # it adopts the services the fork server starts
+                import ctypes
+
+                ctypes.CDLL(None, use_errno=True).prctl(forkserver.PR_SET_CHILD_SUBREAPER, 1)
+            tasks.append(asyncio.create_task(self._supervise(self.children[0])))
+            await self._wait_fork_server(self.children[0])
+        router, *services = [c for c in self.children if c.name != "forkserver"]
+        tasks.append(asyncio.create_task(self._supervise(router)))
         await self._wait_router()
         if not stop.is_set():  # (the router may have refused the config already)
             tasks += [asyncio.create_task(self._supervise(c)) for c in services]
-            self.say("up", f"robot {self.config.name!r}: {', '.join(c.name for c in self.children)} "
+            self.say("up", f"robot {self.config.name!r}: {', '.join(c.name for c in [router, *services])} "
                      f"(Ctrl-C stops them all)")
         await stop.wait()
         await self.stop()
@@ -257,7 +345,7 @@ class Launcher:
         self.say("up", "all stopped")
 
 
-def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> int:
+def up(config: RobotConfig, config_path: Path, wanted: list[str], fork_server: bool = True) -> int:
     """Check the robot, then run the router and the ``wanted`` services and programs that exist,
     until Ctrl-C.
     Returns the exit status: 0, or `EXIT_CONFIG` when the robot cannot run with this config."""
@@ -273,7 +361,7 @@ def up(config: RobotConfig, config_path: Path, wanted: list[str]) -> int:
         print(f"icefloe: {problem}", file=sys.stderr, flush=True)
     if found:
         return EXIT_CONFIG
-    launcher = Launcher(config, config_path, services)
+    launcher = Launcher(config, config_path, services, fork_server=fork_server)
     for note in notes:
         launcher.say("up", note)
     run_async(launcher.run())

@@ -26,6 +26,10 @@ def _environ(pid: int) -> dict[str, str]:
     return dict(pair.split("=", 1) for pair in pairs if "=" in pair)
 
 
+def _parent(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
 def test_the_default_stack_runs_reports_and_stops_cleanly(tmp_path: Path) -> None:
     cfg = robot_config(tmp_path, "stack", f"[webapi]\nport = {free_port()}\n")
     expected = [s for s in config_mod.load(cfg).services if available(s)]
@@ -44,12 +48,21 @@ def test_the_default_stack_runs_reports_and_stops_cleanly(tmp_path: Path) -> Non
             alive = res.stdout.split(":", 1)[-1].split()
         assert set(expected) <= set(alive), f"alive {alive}, expected {expected}\n{Path(log.name).read_text()}"
         assert "router" in alive
-        # Each service runs with the environment its systemd unit gives it on a robot.
+        # Each service runs with the environment its systemd unit gives it on a robot. The fork server
+        # started all but hwbridge's cycle, as copies of itself: glibc's and Python's settings
+        # (SERVICE_ENV) took effect in it when it started, and it holds no thread that a fork would copy
+        # (OPENBLAS_NUM_THREADS). What a forked service sees in os.environ is tests/test_forkserver.py's:
+        # /proc/<pid>/environ shows the server's memory, which setproctitle took for the titles.
         services = {name: pids for name, pids in children(cfg).items() if name != "launcher"}
         assert set(expected) | {"router"} <= set(services), services
+        server = processes_naming(f"icefloe.forkserver serve --socket {config_mod.load(cfg).runtime_dir}")
+        assert len(server) == 1 and "Threads:\t1\n" in Path(f"/proc/{server[0]}/status").read_text(), server
         for name, pids in services.items():
             for pid in pids:
-                assert SERVICE_ENV.items() <= _environ(pid).items(), (name, _environ(pid))
+                if name == "hwbridge (cycle)":   # hwbridge starts it as a fresh Python (it locks its memory)
+                    assert SERVICE_ENV.items() <= _environ(pid).items(), (name, _environ(pid))
+                else:                            # the launcher adopted what the fork server started
+                    assert _parent(pid) == up.pid, (name, pid, _parent(pid))
         tail = subprocess.Popen([*ICEFLOE, "echo", "log", "-n", "1", "--duration", "60", "--config", str(cfg)],
                                 stdout=echo, cwd=ROOT)
         # Something worth a log line: a bad command, which hwbridge must reject and survive. Sent

@@ -29,7 +29,8 @@ def up(args: argparse.Namespace) -> int:
         else:
             print(f"[up] {problem}, so no viewer; {how_to_look()}", flush=True)
     skip = args.skip.split(",") if args.skip else []
-    return launcher.up(cfg, path, [s for s in services if s not in skip])  # checks the robot first
+    return launcher.up(cfg, path, [s for s in services if s not in skip],  # checks the robot first
+                       fork_server=not args.no_fork_server)
 
 
 def sim_override(path: Path, cfg: RobotConfig) -> Path:
@@ -101,6 +102,8 @@ def register(verbs: argparse._SubParsersAction) -> None:
     add_config_argument(p, positional=True)
     p.add_argument("--sim", action="store_true", help="use the simulated board whatever the config says")
     p.add_argument("--no-viz", action="store_true", help="do not open the Rerun viewer")
+    p.add_argument("--no-fork-server", action="store_true",
+                   help="start each service as a fresh Python (more memory; icefloe.forkserver says why not)")
     p.add_argument("--only", metavar="A,B", help="comma-separated services to run (instead of the config's list)")
     p.add_argument("--skip", metavar="A,B", help="comma-separated services not to run")
     p.set_defaults(run=up)

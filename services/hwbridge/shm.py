@@ -1,6 +1,9 @@
 """The shared-memory layout between hwbridge's bus process and its real-time process.
 
-One `multiprocessing.shared_memory` block with a fixed layout (offsets below).
+One block of POSIX shared memory (a file in ``/dev/shm``, mapped with `mmap`) with a fixed
+layout (offsets below). Not `multiprocessing.shared_memory`: that one starts a resource-tracker
+process for every process that touches a block, 6.5 MiB each on a Pi that has none to spare
+(docs/deploy.md, "Memory").
 Each field has exactly one writer:
 
 =========  ======================  =========================================
@@ -48,9 +51,11 @@ practice orders them, but a C implementation would need explicit barriers.
 
 from __future__ import annotations
 
+import mmap
+import os
+import secrets
 import struct
-import sys
-from multiprocessing import resource_tracker, shared_memory
+from pathlib import Path
 
 from .control import HIST_BINS
 
@@ -122,10 +127,47 @@ def block_name(robot: str) -> str:
     return f"icefloe-hwbridge-{robot}"
 
 
+SHM_DIR = Path("/dev/shm")
+"""Where Linux keeps POSIX shared memory (what ``shm_open`` names)."""
+
+
+class Block:
+    """A named block of shared memory mapped into this process: ``buf`` is its bytes."""
+
+    def __init__(self, name: str, fd: int) -> None:
+        self.name = name
+        self._map = mmap.mmap(fd, SIZE)
+        os.close(fd)  # the mapping keeps the memory
+        self.buf = memoryview(self._map)
+
+    @classmethod
+    def create(cls, name: str) -> Block:
+        """A new zeroed block (private to this user); one left behind by a killed hwbridge is replaced."""
+        path = SHM_DIR / name
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        except FileExistsError:
+            path.unlink()
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        os.ftruncate(fd, SIZE)  # a new file reads as zeros
+        return cls(name, fd)
+
+    @classmethod
+    def attach(cls, name: str) -> Block:
+        return cls(name, os.open(SHM_DIR / name, os.O_RDWR))
+
+    def close(self) -> None:
+        self.buf.release()
+        self._map.close()
+
+    def unlink(self) -> None:
+        (SHM_DIR / self.name).unlink(missing_ok=True)
+
+
 class Shared:
     """A view of the hwbridge shared-memory block: ``Shared.create()`` or ``Shared.attach(name)``."""
 
-    def __init__(self, shm: shared_memory.SharedMemory, owner: bool) -> None:
+    def __init__(self, shm: Block, owner: bool) -> None:
         self.shm = shm
         self.owner = owner
         self.buf = shm.buf
@@ -139,32 +181,14 @@ class Shared:
 
     @classmethod
     def create(cls, name: str | None = None) -> Shared:
-        """A new zeroed block; ``name`` (e.g. `block_name`) lets tools attach to read it.
-
-        A block of that name left behind by a killed hwbridge is replaced.
-        """
-        try:
-            shm = shared_memory.SharedMemory(name=name, create=True, size=SIZE)
-        except FileExistsError:
-            stale = shared_memory.SharedMemory(name=name)
-            stale.close()
-            stale.unlink()
-            shm = shared_memory.SharedMemory(name=name, create=True, size=SIZE)
-        shm.buf[:SIZE] = bytes(SIZE)
-        return cls(shm, owner=True)
+        """A new zeroed block; ``name`` (e.g. `block_name`) lets tools attach to read it (default:
+        a name of its own). A block of that name left behind by a killed hwbridge is replaced."""
+        return cls(Block.create(name or f"icefloe-hwbridge-{secrets.token_hex(6)}"), owner=True)
 
     @classmethod
     def attach(cls, name: str) -> Shared:
         """The block another process created. Only its creator unlinks it."""
-        if sys.version_info >= (3, 13):
-            shm = shared_memory.SharedMemory(name=name, track=False)
-        else:
-            # Before 3.13 attaching registers the block with this process's resource
-            # tracker, which would unlink it when we exit (and a restarted RT process
-            # could no longer attach). Undo that registration.
-            shm = shared_memory.SharedMemory(name=name)
-            resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
-        return cls(shm, owner=False)
+        return cls(Block.attach(name), owner=False)
 
     @property
     def name(self) -> str:
