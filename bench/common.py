@@ -29,3 +29,48 @@ def read_state(shared) -> dict:  # type: ignore[no-untyped-def]
     while (state := shared.read_state()) is None:
         time.sleep(0.001)
     return state
+
+
+def cmdline(pid: int) -> list[str]:
+    """A process's command line, as words ([] if it is gone). A service the fork server started
+    has set its title as one string with spaces between the words."""
+    try:
+        return (Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode().split())
+    except OSError:
+        return []
+
+
+def parent_of(pid: int) -> int:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, ValueError):
+        return 0
+
+
+def robot_processes(config: Path, runtime_dir: Path | None = None) -> dict[str, list[int]]:
+    """Name -> pids of every process of a robot run by `icefloe up` with this config: the launcher,
+    each service (by ``-m icefloe.services.<name>``), the router, hwbridge's cycle (its child), and
+    the fork server (by its socket in ``runtime_dir``)."""
+    out: dict[str, list[int]] = {}
+    socket = f"{runtime_dir}/forkserver.sock" if runtime_dir else None
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        words = cmdline(int(entry.name))
+        if "-m" not in words:
+            continue
+        module = words[words.index("-m") + 1]
+        if str(config) in words:
+            name = "launcher" if module == "icefloe.cli" else module.rsplit(".", 1)[-1]
+        elif socket and module == "icefloe.forkserver" and socket in words:
+            name = "forkserver"
+        elif module == "icefloe.services.hwbridge.rt":
+            name = "hwbridge (cycle)"
+        else:
+            continue
+        out.setdefault(name, []).append(int(entry.name))
+    bridges = set(out.get("hwbridge", []))
+    cycles = [p for p in out.pop("hwbridge (cycle)", []) if parent_of(p) in bridges]  # this robot's only
+    if cycles:
+        out["hwbridge (cycle)"] = cycles
+    return out

@@ -39,7 +39,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import free_port, robot_config
+from common import free_port, robot_config, robot_processes
 
 from icefloe.config import ALL_SERVICES, OPTIONAL_SERVICES
 
@@ -54,6 +54,7 @@ BUDGETS: dict[str, tuple[float, float]] = {
     "power": (0.5, 0.5),           # a battery reading at 10 Hz; the buttons only when pressed
     "info": (0.5, 0.5),            # a queryable nobody asks
     "launcher": (0.5, 0.5),        # `icefloe up` waiting on its children
+    "forkserver": (0.5, 0.5),      # waits for a request: none once the robot runs
     "odometry": (3.0, 3.0),        # 100 Hz wheels in, 50 Hz pose out
     "localizer": (5.0, 5.0),       # 50 Hz pose and 15 Hz landmarks in, 20 Hz pose out
     "hwbridge": (4.0, 4.0),        # the bus side: 100 Hz wheels, 10 Hz battery, commands
@@ -85,48 +86,22 @@ def cpu_seconds(pid: int) -> float:
 
 
 def children(config: Path) -> dict[str, list[int]]:
-    """Service name -> pids, from the command lines naming this config."""
-    out: dict[str, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            # (a service the fork server started has set its title as one string, spaces between)
-            text = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode().split()
-        except OSError:
-            continue
-        if str(config) in text and "-m" in text:
-            module = text[text.index("-m") + 1]
-            name = module.rsplit(".", 1)[-1] if module != "icefloe.cli" else "launcher"
-            out.setdefault(name, []).append(int(entry.name))
-    for pid in out.get("hwbridge", [])[:]:  # its real-time cycle runs in a child process
-        cycle = child_pids(pid)
-        if cycle:
-            out["hwbridge (cycle)"] = cycle
-            out["hwbridge"] = [p for p in out["hwbridge"] if p not in cycle]
-    return out
+    """Service name -> pids of the robot run with this config (`common.robot_processes`: the
+    services, the router, hwbridge's cycle, the fork server, the launcher)."""
+    from icefloe import config as config_mod
 
-
-def child_pids(parent: int) -> list[int]:
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                ppid = int(Path(entry, "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, ValueError):
-                continue
-            if ppid == parent:
-                pids.append(int(entry.name))
-    return pids
+    return robot_processes(config, config_mod.load(str(config)).runtime_dir)
 
 
 def started(config: Path, wanted: set[str], timeout: float) -> dict[str, list[int]]:
     """The processes of the robot, once every one of ``wanted`` runs (a busy machine may take a
-    minute to start them all)."""
+    minute to start them all); exit 1 naming what is missing, the cycle first (a total without
+    it would be short by a tenth of a core)."""
     deadline = time.monotonic() + timeout
     while not wanted <= set(procs := children(config)):
         if time.monotonic() > deadline:
-            raise SystemExit(f"not started within {timeout:.0f} s: {', '.join(sorted(wanted - set(procs)))}")
+            missing = sorted(wanted - set(procs), key=lambda n: (n != "hwbridge (cycle)", n))
+            raise SystemExit(f"not running after {timeout:.0f} s: {', '.join(missing)}")
         time.sleep(1.0)
     return procs
 

@@ -31,6 +31,7 @@ the frame is drawn through an ideal pinhole onto a larger canvas, then bent with
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -170,6 +171,29 @@ def true_intrinsics(config: RobotConfig) -> Intrinsics:
     return Intrinsics(k, dist, cam.width, cam.height)
 
 
+class TextureCache:
+    """Textures made at the sizes they were drawn at, the most recently used kept up to `limit` bytes:
+    a robot driving round sees each marker at dozens of sizes, and every size kept forever grew the
+    camera service (where the simulated camera renders) by megabytes an hour (bench/stack_memory.py)."""
+
+    def __init__(self, limit: int = 4 << 20) -> None:
+        self.limit = limit
+        self._kept: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
+        self._bytes = 0
+
+    def get(self, key: tuple[int, int]) -> np.ndarray | None:
+        tex = self._kept.get(key)
+        if tex is not None:
+            self._kept.move_to_end(key)
+        return tex
+
+    def put(self, key: tuple[int, int], tex: np.ndarray) -> None:
+        self._kept[key] = tex
+        self._bytes += tex.nbytes
+        while self._bytes > self.limit and len(self._kept) > 1:
+            self._bytes -= self._kept.popitem(last=False)[1].nbytes
+
+
 class CameraRenderer:
     """Renders frames of a world for one camera; not thread-safe (one renderer per thread)."""
 
@@ -208,8 +232,8 @@ class CameraRenderer:
                                 for m in self._faces]).reshape(-1, 4, 3)
         self._normals = np.array([[math.cos(m.yaw), math.sin(m.yaw), 0.0] for m in self._faces]).reshape(-1, 3)
         self._centres = np.array([[m.x, m.y, m.z] for m in self._faces]).reshape(-1, 3)
-        self._textures: dict[tuple[int, int], np.ndarray] = {}
-        self._board_textures: dict[tuple[int, int], np.ndarray] = {}
+        self._textures = TextureCache()
+        self._board_textures = TextureCache()
         self._board_quads = np.array([rectangle_corners(np.array([b.x, b.y, b.z]), *board_axes(b.yaw, b.tilt)[:2],
                                                         (b.columns + 2) * b.square / 2, (b.rows + 2) * b.square / 2)
                                       for b in world.boards]).reshape(-1, 4, 3)
@@ -266,7 +290,7 @@ class CameraRenderer:
         if tex is None:
             inner = cv2.aruco.generateImageMarker(self._dictionary, marker_id, self._cells * cell_px, borderBits=1)
             tex = cv2.copyMakeBorder(inner, cell_px, cell_px, cell_px, cell_px, cv2.BORDER_CONSTANT, value=255)
-            self._textures[key] = tex
+            self._textures.put(key, tex)
         return tex
 
     def _project(self, points_camera: np.ndarray, k: np.ndarray | None = None) -> np.ndarray:
@@ -317,7 +341,8 @@ class CameraRenderer:
         cell_px = self._mip(side_px, 1, 128)  # the texture at least as fine as the supersampled picture
         tex = self._board_textures.get((index, cell_px))
         if tex is None:
-            tex = self._board_textures[index, cell_px] = board_texture(board, cell_px)
+            tex = board_texture(board, cell_px)
+            self._board_textures.put((index, cell_px), tex)
         self._warp(big, tex, big_quad)
         image[y0:y1, x0:x1] = cv2.resize(big, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
 
