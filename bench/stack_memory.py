@@ -1,13 +1,16 @@
 """Memory of every process of the simulated robot, at the start and after driving, against the goal.
 
-    .venv/bin/python bench/stack_memory.py [--seconds 600] [--no-fork-server]
+    .venv/bin/python bench/stack_memory.py [--seconds 600] [--warmup 120] [--no-fork-server]
 
 Starts `icefloe up` on the default simulated robot (camera detection on; on a free port, no
 viewer), waits until every process runs and has settled, and reads each one's proportional set
 size (PSS: its private pages, and its share of every page it shares with others) and its private
-memory from ``/proc/<pid>/smaps_rollup``. Then it drives the robot in a circle (``icefloe pub``
-at 10 Hz) for ``--seconds`` and reads them again. It prints both next to a reference measured in
-the same run: a bare Python with a Zenoh session, as a service would be with nothing else.
+memory from ``/proc/<pid>/smaps_rollup``, standing. Then it drives the robot in a circle
+(``icefloe pub`` at 10 Hz) for ``--warmup`` (what a process allocates once, when it first has
+work, is behind it: the camera's encoder, the simulator's textures) and reads them again, then
+drives on for ``--seconds`` and reads them a last time. It prints the readings next to a
+reference measured in the same run: a bare Python with a Zenoh session, as a service would be
+with nothing else.
 
 The robot side is what a robot runs: every process but the launcher (`icefloe up`; a robot runs
 its units under systemd) and the simulator. In simulation the camera service renders its own
@@ -16,7 +19,8 @@ robot's) is measured in a process of its own in the same run, over the same driv
 apart, as bench/stack_cpu.py does for its CPU.
 
 It exits 1, naming why, when a process it expects is missing (the cycle first), when the robot
-side is over `GOAL_MIB`, or when a process grew by more than `GROWTH_MIB` while driving.
+side is over `GOAL_MIB` in any reading, or when a process grew by more than `GROWTH_MIB` from the
+second reading to the last.
 docs/deploy.md, "Memory", has the figures and what each step bought.
 """
 
@@ -110,7 +114,8 @@ def wait_for(config: Path, run_dir: Path, wanted: set[str], timeout: float) -> d
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--seconds", type=float, default=600.0, help="how long to drive between the two readings, s")
+    p.add_argument("--seconds", type=float, default=600.0, help="how long to drive between the last two readings, s")
+    p.add_argument("--warmup", type=float, default=120.0, help="how long to drive before the second reading, s")
     p.add_argument("--settle", type=float, default=20.0, help="wait this long once every process runs, s")
     p.add_argument("--no-fork-server", action="store_true", help="every service a fresh Python (to compare)")
     args = p.parse_args()
@@ -131,9 +136,11 @@ def main() -> None:
         procs = wait_for(config, run_dir, set(expected) | {"sim"}, timeout=180.0)
         time.sleep(args.settle)
         procs = robot_processes(config, run_dir)
-        start = snapshot(procs)
+        standing = snapshot(procs)
         driver = subprocess.Popen([*icefloe, "pub", "cmd/twist", '{"v": 0.15, "w": 0.5}', "--rate", "10",
                                    "--config", str(config)], stdout=subprocess.DEVNULL)
+        time.sleep(args.warmup)
+        start = snapshot(procs)
         time.sleep(args.seconds)
         missing = [n for n in expected if n not in robot_processes(config, run_dir)]
         if missing:
@@ -145,25 +152,27 @@ def main() -> None:
         os.killpg(up.pid, signal.SIGINT)
         up.wait(60)
 
-    for reading in (start, end):
+    for reading in (standing, start, end):
         pss, private = reading["camera"]
         reading["sim (camera renderer)"] = (renderer, renderer)
         reading["camera"] = (pss - renderer, private - renderer)
     mode = "each service a fresh Python" if args.no_fork_server else "services forked from the fork server"
-    print(f"Memory of the simulated robot ({mode}), MiB: at the start, and after driving {args.seconds:.0f} s")
+    print(f"Memory of the simulated robot ({mode}), MiB: standing, after driving {args.warmup:.0f} s, "
+          f"and after {args.seconds:.0f} s more")
     print(f"  reference, same run: a bare Python with a Zenoh session: PSS {reference[0]:.1f}, "
           f"private {reference[1]:.1f}")
-    print(f"  {'':<22} {'PSS':>7} {'then':>7} {'private':>8} {'then':>7}")
+    print(f"  {'':<22} {'PSS':>8} {'driving':>8} {'then':>7}   {'private':>8} {'driving':>8} {'then':>7}")
     order = sorted(end, key=lambda n: (n in NOT_THE_ROBOTS or n.startswith("sim"), -end[n][0]))
     problems = []
     for name in order:
-        (p0, v0), (p1, v1) = start.get(name, (0.0, 0.0)), end[name]
+        (p0, v0), (p1, v1), (p2, v2) = (standing.get(name, (0.0, 0.0)), start.get(name, (0.0, 0.0)), end[name])
         note = "  (not the robot's)" if name in NOT_THE_ROBOTS or name.startswith("sim") else ""
-        if not note and p1 - p0 > GROWTH_MIB:
-            note = f"  GROWING (+{p1 - p0:.1f})"
-            problems.append(f"{name} grew {p1 - p0:.1f} MiB while driving")
-        print(f"  {name:<22} {p0:7.1f} {p1:7.1f} {v0:8.1f} {v1:7.1f}{note}")
-    for label, reading in (("at the start", start), ("after driving", end)):
+        if not note and p2 - p1 > GROWTH_MIB:
+            note = f"  GROWING (+{p2 - p1:.1f})"
+            problems.append(f"{name} grew {p2 - p1:.1f} MiB in {args.seconds:.0f} s of driving")
+        print(f"  {name:<22} {p0:8.1f} {p1:8.1f} {p2:7.1f}   {v0:8.1f} {v1:8.1f} {v2:7.1f}{note}")
+    for label, reading in (("standing", standing), (f"after driving {args.warmup:.0f} s", start),
+                           (f"after {args.seconds:.0f} s more", end)):
         robot = [v for n, v in reading.items() if n not in NOT_THE_ROBOTS and not n.startswith("sim")]
         pss, private = sum(v[0] for v in robot), sum(v[1] for v in robot)
         over = pss > GOAL_MIB
