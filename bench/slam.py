@@ -33,13 +33,13 @@ from pathlib import Path
 import numpy as np
 from common import ROOT, robot_config
 
+from icefloe.angles import wrap_angle
 from icefloe.config import load
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
 from icefloe.services.localizer.simrun import Camera, Result, Scenario
-from icefloe.services.odometry.model import wrap_angle
 from icefloe.worldmap import load_world
 
 SERVICES = ("sim", "hwbridge", "odometry", "localizer", "slam", "mapper")

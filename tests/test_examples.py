@@ -20,6 +20,7 @@ import msgspec
 import pytest
 from conftest import ROOT, wait_for
 
+from icefloe.angles import wrap_angle
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
@@ -194,8 +195,7 @@ async def play_camera(node, marker: tuple[float, float], half_fov: float = math.
     landmarks = node.publisher(keys.LANDMARKS)
     async for t in node.subscribe(keys.TRUTH):
         dx, dy = marker[0] - t.x, marker[1] - t.y
-        bearing = math.atan2(dy, dx) - t.theta
-        bearing = math.atan2(math.sin(bearing), math.cos(bearing))
+        bearing = wrap_angle(math.atan2(dy, dx) - t.theta)
         seen = [m.Landmark(id=5, range=math.hypot(dx, dy), bearing=bearing)] if abs(bearing) < half_fov else []
         landmarks.put(m.Landmarks(stamp=t.stamp, landmarks=seen))
         await asyncio.sleep(1 / 15)  # the camera's frame rate
@@ -217,8 +217,8 @@ async def test_follow_marker_reaches_its_marker(robot):
         distance = math.hypot(MARKER_5[0] - end.x, MARKER_5[1] - end.y)
         assert "reached marker 5" in out
         assert 0.25 < distance < 0.6, f"ended {distance:.2f} m from the marker:\n{out}"
-        facing = math.atan2(MARKER_5[1] - end.y, MARKER_5[0] - end.x) - end.theta
-        assert abs(math.atan2(math.sin(facing), math.cos(facing))) < math.radians(15)
+        facing = wrap_angle(math.atan2(MARKER_5[1] - end.y, MARKER_5[0] - end.x) - end.theta)
+        assert abs(facing) < math.radians(15)
 
 
 @pytest.mark.timeout(300)

@@ -8,8 +8,8 @@ import random
 import numpy as np
 import pytest
 
+from icefloe.angles import wrap_angle
 from icefloe.services.localizer.ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sighting
-from icefloe.services.odometry.model import wrap_angle
 from icefloe.worldmap import load_world
 
 LAB = {m.id: (m.x, m.y) for m in load_world("lab").markers}

@@ -16,10 +16,10 @@ import random
 
 from conftest import wait_for
 
+from icefloe.angles import wrap_angle
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.localizer.simrun import Camera, Result, Scenario
-from icefloe.services.odometry.model import wrap_angle
 
 LEGS = [(0.2, 0.0, 2.5), (0.0, 1.5, math.pi / 3)] * 4  # (v m/s, w rad/s, s): a rough 0.5 m square
 

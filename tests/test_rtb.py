@@ -22,12 +22,12 @@ rtb_toolbox = pytest.importorskip("roboticstoolbox", reason="the Robotics Toolbo
                                   'pip install "icefloe[rtb]"')
 
 from icefloe import rtb  # noqa: E402
+from icefloe.angles import wrap_angle  # noqa: E402
 from icefloe.grid import from_world  # noqa: E402
 from icefloe.schemas import keys  # noqa: E402
 from icefloe.schemas import messages as m  # noqa: E402
 from icefloe.score.maths import score_map  # noqa: E402
 from icefloe.services.localizer.simrun import Camera, Result, Scenario  # noqa: E402
-from icefloe.services.odometry.model import wrap_angle  # noqa: E402
 from icefloe.worldmap import load_world  # noqa: E402
 
 WORLD = load_world("lab")

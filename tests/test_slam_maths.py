@@ -11,6 +11,7 @@ import random
 import numpy as np
 import pytest
 
+from icefloe.angles import wrap_angle
 from icefloe.config import RobotConfig
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
@@ -18,7 +19,6 @@ from icefloe.services.localizer.ekf import Noise, Outcome
 from icefloe.services.localizer.simrun import Camera, Result, Scenario
 from icefloe.services.mapper.mapping import LandmarkMapper
 from icefloe.services.mapper.tracker import Mapper
-from icefloe.services.odometry.model import wrap_angle
 from icefloe.services.slam.ekfslam import EkfSlam
 from icefloe.services.slam.tracker import Slam
 from icefloe.worldmap import load_world

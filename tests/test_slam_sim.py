@@ -20,12 +20,12 @@ import pytest
 from conftest import Proc, wait_for
 from test_localizer_sim import check_exits, drive_legs
 
+from icefloe.angles import wrap_angle
 from icefloe.launcher import program_environment
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
 from icefloe.services.localizer.simrun import Camera, Result, Scenario
-from icefloe.services.odometry.model import wrap_angle
 from icefloe.worldmap import load_world
 
 TRUE = {mk.id: (mk.x, mk.y) for mk in load_world("lab").markers}

@@ -21,12 +21,13 @@ import math
 import random
 from dataclasses import dataclass, field
 
+from icefloe.angles import wrap_angle
 from icefloe.config import RobotConfig
 from icefloe.schemas import messages as m
 from icefloe.sim.world import World
 from icefloe.worldmap import load_world
 
-from ..odometry.model import Geometry, Limits, Odometry, wrap_angle
+from ..odometry.model import Geometry, Limits, Odometry
 from .tracker import Localizer
 
 T0_NS = 1_700_000_000 * 10**9

@@ -10,13 +10,13 @@ import logging
 import math
 from collections import deque
 
+from icefloe.angles import wrap_angle
 from icefloe.config import RobotConfig
 from icefloe.logs import LimitedLog
 from icefloe.schemas import messages as m
 from icefloe.worldmap import load_world
 
 from ..camera.geometry import Mount
-from ..odometry.model import wrap_angle
 from .blocks import to_centres
 from .ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sighting
 

@@ -34,8 +34,9 @@ import math
 
 import numpy as np
 
+from icefloe.angles import wrap_angle
+
 from ..localizer.ekf import Noise, Outcome, Result
-from ..odometry.model import wrap_angle
 
 
 class LandmarkMapper:

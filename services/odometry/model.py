@@ -37,16 +37,10 @@ from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 
+from icefloe.angles import wrap_angle
+
 INT16_MIN, INT16_MAX = -32768, 32767
 """Range of a raw 16-bit encoder counter (PenguinPi and icoBoard both count in int16)."""
-
-
-def wrap_angle(a: float) -> float:
-    """``a`` wrapped to (-pi, pi], rad."""
-    w = math.fmod(a + math.pi, 2.0 * math.pi)  # in (-2pi, 2pi), with the sign of a + pi
-    if w <= 0.0:
-        w += 2.0 * math.pi  # now in (0, 2pi]
-    return w - math.pi
 
 
 def sinc(u: float) -> float:

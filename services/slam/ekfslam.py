@@ -46,8 +46,9 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from icefloe.angles import wrap_angle
+
 from ..localizer.ekf import Noise, Outcome, Result, gated_update
-from ..odometry.model import wrap_angle
 
 
 class EkfSlam:
