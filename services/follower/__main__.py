@@ -11,7 +11,7 @@ It steers with `pursuit.py` (the maths, one small module) from the pose on ``fol
 A stop wins: a stop on ``cmd/stop`` from anyone ends the path at once (and the follower sends a
 stop of its own after it, so not even a twist it issued a moment after that stop moves the
 wheels); a path issued before a stop that arrives after it, a path older than the deadman, and
-an overtaken path are not driven (the rules of hwbridge, `services/hwbridge/ordering.py`). An
+an overtaken path are not driven (the rules of hwbridge, `icefloe/ordering.py`). An
 empty path ends the one being followed; a pose that stops coming ends it too.
 """
 
@@ -22,10 +22,10 @@ import time
 from dataclasses import dataclass
 
 from icefloe.config import RobotConfig
+from icefloe.ordering import CommandOrder, Origin
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.hwbridge.ordering import CommandOrder, Origin
 
 from .pursuit import Params, Point, step
 
