@@ -18,7 +18,7 @@
 2. **Localizer update time per landmark observation** (goal < 1 ms):
    `Ekf.observe` in-process, median and 99th percentile. Reference: one
    `Ekf.predict` and one bare 2 x 2 `numpy.linalg.inv` (numpy's per-call floor).
-3. **Square-run errors**: `services/localizer/simrun.py`, the simulator's
+3. **Square-run errors**: `icefloe/estimation/simrun.py`, the simulator's
    World driven four times round a 1 m square, no slip and with slip, encoder
    noise and 2 % outliers, over several seeds.
 """
@@ -224,7 +224,7 @@ def odometry_cpu(seconds: float, tmp: Path) -> list[tuple[str, str]]:
 def localizer_timing(n: int = 20000) -> list[tuple[str, str]]:
     import numpy as np
 
-    from icefloe.services.localizer.ekf import Ekf
+    from icefloe.estimation.ekf import Ekf
     from icefloe.worldmap import load_world
 
     lab = {mk.id: (mk.x, mk.y) for mk in load_world("lab").markers}
@@ -256,7 +256,7 @@ def square_runs(seeds: int) -> list[tuple[str, str]]:
     import logging
 
     from icefloe import config as config_mod
-    from icefloe.services.localizer.simrun import Scenario, square_run
+    from icefloe.estimation.simrun import Scenario, square_run
 
     logging.getLogger("icefloe.simrun").setLevel(logging.ERROR)
     cfg = config_mod.load()

@@ -7,7 +7,7 @@ Real processes on a router of their own: sim (slip 0.05, encoder noise 0.01), hw
 odometry, localizer, slam and mapper (known pose: sim/truth). This script drives round a 1 m
 square in the lab's clear space with ``cmd/twist``, steering on the true pose (so every run drives
 the same tour), and plays the camera: every third ``sim/truth`` sample (~17 Hz) becomes the
-sightings the camera would make (`simrun.Camera`: field of view, range, seeded noise) on
+sightings the camera would make (`icefloe.testing.TruthCamera`: field of view, range, seeded noise) on
 ``camera/landmarks``. At the end:
 
 * the map of ``slam/map`` and of ``map/landmarks`` scored with `icefloe score`'s maths
@@ -39,7 +39,7 @@ from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
-from icefloe.services.localizer.simrun import Camera, Result, Scenario
+from icefloe.testing import TruthCamera, play_camera
 from icefloe.worldmap import load_world
 
 SERVICES = ("sim", "hwbridge", "odometry", "localizer", "slam", "mapper")
@@ -68,24 +68,15 @@ async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, su
     config = load(config_path)
     latest: dict[str, object] = {}
     async with Node("bench", config) as node:
-        camera = Camera(config, Scenario(), random.Random(seed))
-        cam = node.publisher(keys.LANDMARKS)
+        camera = TruthCamera(config, random.Random(seed))
         twist = node.publisher(keys.TWIST)
-        n = 0
-
-        async def play() -> None:
-            nonlocal n
-            async for t in node.subscribe(keys.TRUTH, latest=False):
-                latest["truth"] = t
-                n += 1
-                if n % 3 == 0:
-                    cam.put(camera.frame((t.x, t.y, t.theta), t.stamp, Result()))
 
         async def keep(topic: keys.Topic) -> None:
             async for msg in node.subscribe(topic):
                 latest[topic.name] = msg
 
-        tasks = [asyncio.create_task(play())] + [asyncio.create_task(keep(t)) for t in (
+        tasks = [asyncio.create_task(play_camera(node, camera, on_truth=lambda t, _: latest.update(truth=t)))]
+        tasks += [asyncio.create_task(keep(t)) for t in (
             keys.ODOM_POSE, keys.LOC_POSE, keys.SLAM_POSE, keys.SLAM_MAP, keys.MAP_LANDMARKS)]
         t0 = time.monotonic()
         while not all(k in latest for k in ("truth", "odom/pose", "loc/pose")):

@@ -1,4 +1,4 @@
-"""Unit tests of the pure dead-reckoning model (services/odometry/model.py)."""
+"""Unit tests of the pure dead-reckoning model (icefloe/estimation/odometry.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from icefloe.services.odometry.model import (
+from icefloe.estimation.odometry import (
     Event,
     Geometry,
     Limits,
@@ -248,8 +248,8 @@ def test_non_integer_samples_are_ignored(sample: tuple) -> None:
 def test_event_log_reports_each_kind_then_limits_a_storm() -> None:
     import logging
 
-    from icefloe.services.odometry.__main__ import EventLog
-    from icefloe.services.odometry.model import Step
+    from icefloe.estimation.odometry import Step
+    from icefloe.estimation.odometry import EventLog
 
     lines: list[str] = []
 

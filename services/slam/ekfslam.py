@@ -5,7 +5,7 @@ State: the robot's pose and every landmark seen so far, in SLAM's own frame
 
     mu = (x, y, theta, m1x, m1y, m2x, m2y, ...)        P: (3 + 2n) x (3 + 2n)
 
-This is the localizer's filter (services/localizer/ekf.py) with the map moved
+This is the localizer's filter (icefloe/estimation/ekf.py) with the map moved
 into the state. The same three steps, each touching a part of P:
 
 Prediction — an odometry increment u = (dx, dy, dth) in the robot's frame
@@ -47,8 +47,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from icefloe.angles import wrap_angle
-
-from ..localizer.ekf import Noise, Outcome, Result, gated_update
+from icefloe.estimation.ekf import Noise, Outcome, Result, gated_update
 
 
 class EkfSlam:
