@@ -214,10 +214,10 @@ def renderer_share(config: Path, frames: int = 40) -> float:
     """% of one core the simulated camera's renderer takes at ``camera.fps``: CPU time of
     rendering ``frames`` frames of this robot's world from a moving pose, in this process."""
     from icefloe import config as config_mod
-    from icefloe.services.camera.sources import SimSource
+    from icefloe.sim.camera import CameraRenderer
 
     cfg = config_mod.load(str(config))
-    renderer = SimSource(cfg).renderer
+    renderer = CameraRenderer.of_robot(cfg)
     renderer.render(0.0, 0.0, 0.0)  # warm up
     start = time.process_time()
     for i in range(frames):

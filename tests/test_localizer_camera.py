@@ -29,7 +29,7 @@ from test_localizer_sim import at, check_exits, collect, drive_legs, error, erro
 from icefloe.angles import wrap_angle
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.camera.geometry import range_bearing
+from icefloe.vision.geometry import range_bearing
 from icefloe.worldmap import load_world
 
 pytestmark = pytest.mark.slow

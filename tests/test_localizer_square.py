@@ -1,5 +1,5 @@
 """The "done" figures as a pure simulation: the simulator's World driven around a 1 m square four times,
-the real odometry model and the real localizer (`icefloe.estimation.localizer.Localizer`) compared against the true pose.
+the real odometry model and the real localizer (`icefloe.estimation.localizer`) against the true pose.
 
 Seeded, simulated time: deterministic. Prints the figures (pytest -s shows them).
 """

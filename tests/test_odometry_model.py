@@ -248,8 +248,7 @@ def test_non_integer_samples_are_ignored(sample: tuple) -> None:
 def test_event_log_reports_each_kind_then_limits_a_storm() -> None:
     import logging
 
-    from icefloe.estimation.odometry import Step
-    from icefloe.estimation.odometry import EventLog
+    from icefloe.estimation.odometry import EventLog, Step
 
     lines: list[str] = []
 

@@ -52,7 +52,7 @@ from enum import Enum
 
 import numpy as np
 
-from icefloe.angles import wrap_angle
+from ..angles import wrap_angle
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,8 @@ from typing import Protocol
 
 import numpy as np
 
-from icefloe.logs import LimitedLog
-from icefloe.schemas import messages as m
+from ..logs import LimitedLog
+from ..schemas import messages as m
 
 
 class MapFilter(Protocol):

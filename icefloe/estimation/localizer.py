@@ -10,14 +10,14 @@ import logging
 import math
 from collections import deque
 
-from icefloe.angles import wrap_angle
-from icefloe.config import RobotConfig
-from icefloe.estimation.blocks import to_centres
-from icefloe.estimation.ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sighting
-from icefloe.logs import LimitedLog
-from icefloe.schemas import messages as m
-from icefloe.services.camera.geometry import Mount
-from icefloe.worldmap import load_world
+from ..angles import wrap_angle
+from ..config import RobotConfig
+from ..logs import LimitedLog
+from ..schemas import messages as m
+from ..vision.geometry import Mount
+from ..worldmap import load_world
+from .blocks import to_centres
+from .ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sighting
 
 
 def make_ekf(config: RobotConfig) -> Ekf:

@@ -44,10 +44,10 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import ClassVar
 
-from icefloe.angles import wrap_angle
-from icefloe.config import RobotConfig
-from icefloe.logs import LimitedLog
-from icefloe.schemas import messages as m
+from ..angles import wrap_angle
+from ..config import RobotConfig
+from ..logs import LimitedLog
+from ..schemas import messages as m
 
 INT16_MIN, INT16_MAX = -32768, 32767
 """Range of a raw 16-bit encoder counter (PenguinPi and icoBoard both count in int16)."""

@@ -21,13 +21,13 @@ import math
 import random
 from dataclasses import dataclass, field
 
-from icefloe.angles import wrap_angle
-from icefloe.config import RobotConfig
-from icefloe.estimation.localizer import Localizer
-from icefloe.estimation.odometry import make_odometry
-from icefloe.schemas import messages as m
-from icefloe.sim.world import World
-from icefloe.testing import TruthCamera
+from ..angles import wrap_angle
+from ..config import RobotConfig
+from ..schemas import messages as m
+from ..sim.world import World
+from ..testing import TruthCamera
+from .localizer import Localizer
+from .odometry import make_odometry
 
 T0_NS = 1_700_000_000 * 10**9
 """Simulated clock origin, ns since the epoch (any fixed value works)."""
