@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
-import os
 import random
 import subprocess
 import sys
@@ -31,7 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import ROOT, robot_config
+from common import ROOT, cpu_seconds_with_children, robot_config
 
 from icefloe.angles import wrap_angle
 from icefloe.config import load
@@ -45,23 +44,6 @@ from icefloe.worldmap import load_world
 SERVICES = ("sim", "hwbridge", "odometry", "localizer", "slam", "mapper")
 SQUARE = [(1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (0.0, 0.0)]
 """Corners driven to in turn, counter-clockwise, m (inside the lab's clear square)."""
-TICK = os.sysconf("SC_CLK_TCK")
-"""Clock ticks per second in /proc/<pid>/stat."""
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU of a process and its children (hwbridge runs its cycle in a child), s."""
-    total = 0.0
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(entry.name) == pid or int(fields[1]) == pid:
-            total += (int(fields[11]) + int(fields[12])) / TICK
-    return total
 
 
 async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, subprocess.Popen]) -> dict:
@@ -83,7 +65,7 @@ async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, su
             if time.monotonic() - t0 > 120:
                 raise SystemExit(f"the services did not start within 120 s: have {sorted(latest)}")
             await asyncio.sleep(0.2)
-        cpu0 = {name: cpu_seconds(p.pid) for name, p in procs.items()}
+        cpu0 = {name: cpu_seconds_with_children(p.pid) for name, p in procs.items()}
         start = time.monotonic()
         corner, driven, last = 0, 0.0, latest["truth"]
         while time.monotonic() - start < seconds:  # steer on the true pose: every run drives the same square
@@ -103,7 +85,7 @@ async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, su
         latest["driven"] = driven
         node.publisher(keys.STOP).put(m.Stop())
         wall = time.monotonic() - start
-        cpu = {name: (cpu_seconds(p.pid) - cpu0[name]) / wall for name, p in procs.items()}
+        cpu = {name: (cpu_seconds_with_children(p.pid) - cpu0[name]) / wall for name, p in procs.items()}
         await asyncio.sleep(2.0)  # the wheels at rest, the last estimates out
         for task in tasks:
             task.cancel()

@@ -39,12 +39,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import free_port, robot_config
+from common import cpu_seconds, free_port, robot_config
 
 from icefloe.config import ALL_SERVICES, OPTIONAL_SERVICES
 
 ROOT = Path(__file__).resolve().parent.parent
-TICKS = os.sysconf("SC_CLK_TCK")
 SIM = ("sim", "sim (camera renderer)")
 """Not the robot's: the simulator and its camera renderer."""
 BUDGETS: dict[str, tuple[float, float]] = {
@@ -77,11 +76,6 @@ lab's clear square (docs/planning.md)."""
 CENTRE = (0.4, 0.4)
 """--course: where the path ends, after the laps (a point no lap passes: the follower stops
 when it comes within its tolerance of the end)."""
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS  # utime + stime
 
 
 def children(config: Path) -> dict[str, list[int]]:
