@@ -58,12 +58,15 @@ def module_name(path: Path) -> str | None:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+FOLDERS = (*PACKAGES, "tests", "bench", "examples", "tools")
+"""Where the repository's Python is (not the .venv: walking it would take most of the time)."""
+
+
 def python_files() -> Iterator[Path]:
-    for path in sorted(ROOT.rglob("*.py")):
-        rel = path.relative_to(ROOT).parts
-        if rel[0].startswith(".") or "node_modules" in rel or "__pycache__" in rel:
-            continue
-        yield path
+    for folder in FOLDERS:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            if not {"node_modules", "__pycache__"} & set(path.relative_to(ROOT).parts):
+                yield path
 
 
 def imports(path: Path, me: str | None = None) -> Iterator[str]:
