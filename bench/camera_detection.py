@@ -32,10 +32,10 @@ from icefloe import config as config_mod
 from icefloe.runtime import Node
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
-from icefloe.services.camera.__main__ import make_detector
-from icefloe.services.camera.detection import check_frame
-from icefloe.services.camera.geometry import Intrinsics, Mount
+from icefloe.services.camera.detection import make_detector
 from icefloe.sim.camera import CameraRenderer
+from icefloe.vision.geometry import Intrinsics, Mount
+from icefloe.vision.sources import check_frame
 from icefloe.worldmap import load_world
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -22,8 +22,8 @@ import msgspec
 import numpy as np
 
 from icefloe import config as config_mod
-from icefloe.services.camera.geometry import Mount
 from icefloe.sim.camera import CameraRenderer, true_intrinsics
+from icefloe.vision.geometry import Mount
 from icefloe.worldmap import load_world
 
 

@@ -1,18 +1,49 @@
-"""What the benchmarks share: a robot config of their own, on a free loopback port."""
+"""What the benchmarks share: a robot config of their own, on a free loopback port, and the CPU
+time of processes."""
 
 from __future__ import annotations
 
-import socket
+import os
 import time
 from pathlib import Path
 
+from icefloe.testing import free_port
+
+__all__ = ["ROOT", "cmdline", "cpu_percent", "cpu_seconds", "cpu_seconds_with_children", "free_port", "parent_of",
+           "read_state", "robot_config", "robot_processes"]
+
 ROOT = Path(__file__).resolve().parent.parent
+TICK = os.sysconf("SC_CLK_TCK")
+"""Clock ticks per second in /proc/<pid>/stat."""
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process (all its threads) so far, s."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime: fields 14 and 15 of stat(5)
+
+
+def cpu_seconds_with_children(pid: int) -> float:
+    """`cpu_seconds` of a process and of its children (hwbridge runs its cycle in a child), s."""
+    total = 0.0
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(entry.name) == pid or int(fields[1]) == pid:
+            total += (int(fields[11]) + int(fields[12])) / TICK
+    return total
+
+
+def cpu_percent(pid: int, seconds: float) -> float:
+    """Percent of one core used by process ``pid`` over the next ``seconds`` (this sleeps meanwhile)."""
+    c0, t0 = cpu_seconds(pid), time.monotonic()
+    time.sleep(seconds)
+    c1, t1 = cpu_seconds(pid), time.monotonic()
+    return 100.0 * (c1 - c0) / (t1 - t0)
 
 
 def robot_config(folder: Path, name: str, extra_toml: str = "") -> Path:

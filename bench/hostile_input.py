@@ -491,7 +491,7 @@ def moved(a: m.SimState, b: m.SimState) -> float:
 
 def idle_connections(stack: Stack, count: int) -> None:
     """webapi's RSS with ``count`` idle keep-alive connections, and after it closed them."""
-    from icefloe.services.webapi.__main__ import KEEPALIVE_S
+    from icefloe.services.webapi.server import KEEPALIVE_S
 
     async def run() -> tuple[float, float, int]:
         idle = await open_idle("127.0.0.1", stack.web_port, count)

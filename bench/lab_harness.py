@@ -16,7 +16,6 @@ import contextlib
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -26,6 +25,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from common import cpu_seconds, free_port
+
 from icefloe import config as config_mod
 from icefloe import credentials
 from icefloe.config import RobotConfig
@@ -34,16 +35,9 @@ ROOT = Path(__file__).resolve().parent.parent
 SIM_CONFIG = ROOT / "deploy" / "robots" / "sim.toml"
 SERVICES = ("sim", "hwbridge", "odometry")
 """What runs per robot: the simulated board, the bridge to it, and dead reckoning."""
-TICK = os.sysconf("SC_CLK_TCK")
 
 
 # ---------------------------------------------------------------------------- CPU from /proc
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process (all its threads) so far, s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime: fields 14 and 15 of stat(5)
 
 
 def children(pid: int) -> list[int]:
@@ -114,12 +108,6 @@ def _wait_listening(router: Proc, timeout: float) -> None:
         if not router.alive() or time.monotonic() > deadline:
             raise RuntimeError(f"{router.name} did not start:\n{router.tail()}")
         time.sleep(0.1)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Proc:

@@ -107,15 +107,15 @@ def camera_messages(config: RobotConfig) -> tuple[m.Image, m.Landmarks]:
     pose where it sees at least two markers of the world."""
     import cv2
 
-    from icefloe.services.camera.__main__ import make_detector
+    from icefloe.services.camera.detection import make_detector
     from icefloe.services.camera.frames import jpeg
-    from icefloe.services.camera.sources import SimSource
+    from icefloe.sim.camera import CameraRenderer
 
-    cam, source = config.camera, SimSource(config)
+    cam, renderer = config.camera, CameraRenderer.of_robot(config)
     detector = make_detector(config)
     best: tuple[m.Image, m.Landmarks] | None = None
     for heading in range(0, 360, 30):
-        image, _ = source.renderer.render(0.0, 0.0, math.radians(heading))
+        image, _ = renderer.render(0.0, 0.0, math.radians(heading))
         found = detector.detect(image)
         small = cv2.resize(image, (cam.image_width, cam.image_height), interpolation=cv2.INTER_AREA)
         picture = m.Image(stamp=time.time_ns(), width=cam.image_width, height=cam.image_height,

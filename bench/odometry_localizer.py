@@ -18,7 +18,7 @@
 2. **Localizer update time per landmark observation** (goal < 1 ms):
    `Ekf.observe` in-process, median and 99th percentile. Reference: one
    `Ekf.predict` and one bare 2 x 2 `numpy.linalg.inv` (numpy's per-call floor).
-3. **Square-run errors**: `services/localizer/simrun.py`, the simulator's
+3. **Square-run errors**: `icefloe/estimation/simrun.py`, the simulator's
    World driven four times round a 1 m square, no slip and with slip, encoder
    noise and 2 % outliers, over several seeds.
 """
@@ -37,8 +37,9 @@ import threading
 import time
 from pathlib import Path
 
+from common import cpu_percent, cpu_seconds
+
 ROOT = Path(__file__).resolve().parent.parent
-TICK = os.sysconf("SC_CLK_TCK")
 COUNTS_PER_MS = 0.2 * 1e-3 / (math.pi * 0.065 / 384)  # 0.2 m/s in counts per ms
 
 FLOOR = """
@@ -86,19 +87,6 @@ async def main():
 
 asyncio.run(main())
 """
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process so far, s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK
-
-
-def measure(pid: int, seconds: float) -> float:
-    """Percent of one core used by process ``pid`` over the next ``seconds``."""
-    c0, t0 = cpu_seconds(pid), time.monotonic()
-    time.sleep(seconds)
-    return 100.0 * (cpu_seconds(pid) - c0) / (time.monotonic() - t0)
 
 
 def publish(config_path: Path, rate_hz: float, stop: threading.Event, sent: list[float],
@@ -181,7 +169,7 @@ def odometry_cpu(seconds: float, tmp: Path) -> list[tuple[str, str]]:
     try:
         time.sleep(2.0)
         rows.append(("odometry process, idle (no input)",
-                     f"{measure(procs['odometry process'].pid, seconds / 2):6.2f} % of one core"))
+                     f"{cpu_percent(procs['odometry process'].pid, seconds / 2):6.2f} % of one core"))
         sent = [0.0, 0]
         for rate in (1000.0, 100.0):
             stop, ready = threading.Event(), threading.Event()
@@ -224,7 +212,7 @@ def odometry_cpu(seconds: float, tmp: Path) -> list[tuple[str, str]]:
 def localizer_timing(n: int = 20000) -> list[tuple[str, str]]:
     import numpy as np
 
-    from icefloe.services.localizer.ekf import Ekf
+    from icefloe.estimation.ekf import Ekf
     from icefloe.worldmap import load_world
 
     lab = {mk.id: (mk.x, mk.y) for mk in load_world("lab").markers}
@@ -256,7 +244,7 @@ def square_runs(seeds: int) -> list[tuple[str, str]]:
     import logging
 
     from icefloe import config as config_mod
-    from icefloe.services.localizer.simrun import Scenario, square_run
+    from icefloe.estimation.simrun import Scenario, square_run
 
     logging.getLogger("icefloe.simrun").setLevel(logging.ERROR)
     cfg = config_mod.load()

@@ -32,11 +32,11 @@ from common import free_port
 
 from icefloe.schemas import codec
 from icefloe.schemas import messages as m
-from icefloe.services.camera.geometry import Intrinsics
 from icefloe.services.extloc import locate
-from icefloe.services.extloc.__main__ import external_pose
-from icefloe.services.extloc.geometry import CameraPose
+from icefloe.services.extloc.tracker import external_pose
 from icefloe.sim.overhead import OverheadRenderer, RobotView
+from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.overhead import CameraPose
 from icefloe.worldmap import load_world
 
 DICTIONARY = "DICT_4X4_100"

@@ -29,8 +29,8 @@ import time
 from collections import deque
 from pathlib import Path
 
-from common import free_port, robot_config
-from stack_cpu import children, cpu_seconds
+from common import cpu_seconds, free_port, robot_config
+from stack_cpu import children
 
 from icefloe import config as config_mod
 from icefloe.grid import FREE, from_world

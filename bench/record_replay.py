@@ -41,16 +41,10 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from common import free_port, read_state, robot_config
+from common import cpu_seconds, free_port, read_state, robot_config
 
 ROOT = Path(__file__).resolve().parent.parent
 ICEFLOE = [sys.executable, "-m", "icefloe.cli"]
-TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS  # utime + stime
 
 
 class Spy:

@@ -29,7 +29,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import zenoh
-from lab_harness import ROOT, SIM_CONFIG, cpu_seconds, free_port
+from common import cpu_seconds, free_port
+from lab_harness import ROOT, SIM_CONFIG
 
 from icefloe import credentials
 

@@ -31,8 +31,9 @@ import threading
 import time
 from pathlib import Path
 
+from common import cpu_percent, free_port
+
 ROOT = Path(__file__).resolve().parent.parent
-TICK = os.sysconf("SC_CLK_TCK")
 
 REFERENCE = """
 import time
@@ -43,20 +44,6 @@ while True:
     if delay > 0:
         time.sleep(delay)
 """
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process so far, s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime (fields 14, 15)
-
-
-def measure(proc: subprocess.Popen[bytes], seconds: float) -> float:
-    """Percent of one core used by ``proc`` over the next ``seconds``."""
-    c0, t0 = cpu_seconds(proc.pid), time.monotonic()
-    time.sleep(seconds)
-    c1, t1 = cpu_seconds(proc.pid), time.monotonic()
-    return 100.0 * (c1 - c0) / (t1 - t0)
 
 
 def host_1khz(path: str, stop: threading.Event, rtts: list[float]) -> None:
@@ -87,12 +74,6 @@ def host_1khz(path: str, stop: threading.Event, rtts: list[float]) -> None:
             time.sleep(delay)
     sock.send(wire.request(Op.EXIT, seq=seq + 1))
     sock.close()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 ECHO = """
@@ -175,7 +156,7 @@ def run_case(name: str, extra_toml: str, seconds: float, tmp: Path,
                                       args=(str(run_dir / "icoboard.sock"), stop, rtts))
             thread.start()
             time.sleep(0.5)
-        percent = measure(sim, seconds)
+        percent = cpu_percent(sim.pid, seconds)
         if sim.poll() is not None:
             log.flush()
             raise SystemExit(f"the sim process ({name}) exited during the measurement:\n"
@@ -201,7 +182,7 @@ def main() -> None:
         tmp = Path(tmp_name)
         ref = subprocess.Popen([sys.executable, "-c", REFERENCE])
         time.sleep(0.5)
-        reference = measure(ref, args.seconds)
+        reference = cpu_percent(ref.pid, args.seconds)
         ref.kill()
         ref.wait()
         rows = [("reference: bare Python 1 kHz sleep loop", reference)]

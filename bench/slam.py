@@ -7,7 +7,7 @@ Real processes on a router of their own: sim (slip 0.05, encoder noise 0.01), hw
 odometry, localizer, slam and mapper (known pose: sim/truth). This script drives round a 1 m
 square in the lab's clear space with ``cmd/twist``, steering on the true pose (so every run drives
 the same tour), and plays the camera: every third ``sim/truth`` sample (~17 Hz) becomes the
-sightings the camera would make (`simrun.Camera`: field of view, range, seeded noise) on
+sightings the camera would make (`icefloe.testing.TruthCamera`: field of view, range, seeded noise) on
 ``camera/landmarks``. At the end:
 
 * the map of ``slam/map`` and of ``map/landmarks`` scored with `icefloe score`'s maths
@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
-import os
 import random
 import subprocess
 import sys
@@ -31,68 +30,42 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import ROOT, robot_config
+from common import ROOT, cpu_seconds_with_children, robot_config
 
+from icefloe.angles import wrap_angle
 from icefloe.config import load
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
-from icefloe.services.localizer.simrun import Camera, Result, Scenario
-from icefloe.services.odometry.model import wrap_angle
+from icefloe.testing import TruthCamera, play_camera
 from icefloe.worldmap import load_world
 
 SERVICES = ("sim", "hwbridge", "odometry", "localizer", "slam", "mapper")
 SQUARE = [(1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (0.0, 0.0)]
 """Corners driven to in turn, counter-clockwise, m (inside the lab's clear square)."""
-TICK = os.sysconf("SC_CLK_TCK")
-"""Clock ticks per second in /proc/<pid>/stat."""
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU of a process and its children (hwbridge runs its cycle in a child), s."""
-    total = 0.0
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(entry.name) == pid or int(fields[1]) == pid:
-            total += (int(fields[11]) + int(fields[12])) / TICK
-    return total
 
 
 async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, subprocess.Popen]) -> dict:
     config = load(config_path)
     latest: dict[str, object] = {}
     async with Node("bench", config) as node:
-        camera = Camera(config, Scenario(), random.Random(seed))
-        cam = node.publisher(keys.LANDMARKS)
+        camera = TruthCamera(config, random.Random(seed))
         twist = node.publisher(keys.TWIST)
-        n = 0
-
-        async def play() -> None:
-            nonlocal n
-            async for t in node.subscribe(keys.TRUTH, latest=False):
-                latest["truth"] = t
-                n += 1
-                if n % 3 == 0:
-                    cam.put(camera.frame((t.x, t.y, t.theta), t.stamp, Result()))
 
         async def keep(topic: keys.Topic) -> None:
             async for msg in node.subscribe(topic):
                 latest[topic.name] = msg
 
-        tasks = [asyncio.create_task(play())] + [asyncio.create_task(keep(t)) for t in (
+        tasks = [asyncio.create_task(play_camera(node, camera, on_truth=lambda t, _: latest.update(truth=t)))]
+        tasks += [asyncio.create_task(keep(t)) for t in (
             keys.ODOM_POSE, keys.LOC_POSE, keys.SLAM_POSE, keys.SLAM_MAP, keys.MAP_LANDMARKS)]
         t0 = time.monotonic()
         while not all(k in latest for k in ("truth", "odom/pose", "loc/pose")):
             if time.monotonic() - t0 > 120:
                 raise SystemExit(f"the services did not start within 120 s: have {sorted(latest)}")
             await asyncio.sleep(0.2)
-        cpu0 = {name: cpu_seconds(p.pid) for name, p in procs.items()}
+        cpu0 = {name: cpu_seconds_with_children(p.pid) for name, p in procs.items()}
         start = time.monotonic()
         corner, driven, last = 0, 0.0, latest["truth"]
         while time.monotonic() - start < seconds:  # steer on the true pose: every run drives the same square
@@ -112,7 +85,7 @@ async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, su
         latest["driven"] = driven
         node.publisher(keys.STOP).put(m.Stop())
         wall = time.monotonic() - start
-        cpu = {name: (cpu_seconds(p.pid) - cpu0[name]) / wall for name, p in procs.items()}
+        cpu = {name: (cpu_seconds_with_children(p.pid) - cpu0[name]) / wall for name, p in procs.items()}
         await asyncio.sleep(2.0)  # the wheels at rest, the last estimates out
         for task in tasks:
             task.cancel()

@@ -39,12 +39,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import free_port, robot_config, robot_processes
+from common import cpu_seconds, free_port, robot_config, robot_processes
 
 from icefloe.config import ALL_SERVICES, OPTIONAL_SERVICES
 
 ROOT = Path(__file__).resolve().parent.parent
-TICKS = os.sysconf("SC_CLK_TCK")
 SIM = ("sim", "sim (camera renderer)")
 """Not the robot's: the simulator and its camera renderer."""
 BUDGETS: dict[str, tuple[float, float]] = {
@@ -78,11 +77,6 @@ lab's clear square (docs/planning.md)."""
 CENTRE = (0.4, 0.4)
 """--course: where the path ends, after the laps (a point no lap passes: the follower stops
 when it comes within its tolerance of the end)."""
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS  # utime + stime
 
 
 def children(config: Path) -> dict[str, list[int]]:
@@ -189,10 +183,10 @@ def renderer_share(config: Path, frames: int = 40) -> float:
     """% of one core the simulated camera's renderer takes at ``camera.fps``: CPU time of
     rendering ``frames`` frames of this robot's world from a moving pose, in this process."""
     from icefloe import config as config_mod
-    from icefloe.services.camera.sources import SimSource
+    from icefloe.sim.camera import CameraRenderer
 
     cfg = config_mod.load(str(config))
-    renderer = SimSource(cfg).renderer
+    renderer = CameraRenderer.of_robot(cfg)
     renderer.render(0.0, 0.0, 0.0)  # warm up
     start = time.process_time()
     for i in range(frames):

@@ -29,23 +29,11 @@ from pathlib import Path
 
 import msgspec
 import zenoh
+from common import cpu_seconds, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
-TICK = os.sysconf("SC_CLK_TCK")
 GOAL_P99_MS = 50.0
 GOAL_CPU_PERCENT = 30.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process so far, s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime (fields 14, 15)
 
 
 def summary_ms(lags_ns: list[int]) -> str:

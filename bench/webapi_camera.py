@@ -33,8 +33,8 @@ import time
 import urllib.request
 from pathlib import Path
 
-from common import free_port, robot_config
-from stack_cpu import children, cpu_seconds
+from common import cpu_seconds, free_port, robot_config
+from stack_cpu import children
 
 from icefloe import config as config_mod
 from icefloe.runtime import Node

@@ -15,6 +15,7 @@ import argparse
 import math
 import time
 
+from icefloe.angles import wrap_angle
 from icefloe.client import Robot, add_robot_arguments, robot_arguments
 
 SPEED = 0.20
@@ -37,11 +38,6 @@ TOLERANCE = math.radians(1.5)
 """Heading error we accept after a turn, rad."""
 
 
-def angle_to(target: float, theta: float) -> float:
-    """Signed angle from ``theta`` to ``target``, wrapped to (-pi, pi], rad."""
-    return math.atan2(math.sin(target - theta), math.cos(target - theta))
-
-
 def wait_until_still(robot: Robot) -> None:
     """Wait until odometry says the wheels have stopped (the stop takes a moment)."""
     while abs(robot.pose.v) > 0.002 or abs(robot.pose.w) > 0.01:
@@ -61,7 +57,7 @@ def drive_to(robot: Robot, x: float, y: float) -> None:
         if ahead <= 0:
             break
         if ahead > CREEP_DISTANCE:
-            steer = STEER * angle_to(math.atan2(dy, dx), here.theta)
+            steer = STEER * wrap_angle(math.atan2(dy, dx) - here.theta)
             steer = max(-MAX_STEER, min(MAX_STEER, steer))
             robot.set_velocity(SPEED - steer, SPEED + steer)
         else:  # nearly there: the bearing of a close point swings wildly, go straight
@@ -78,12 +74,12 @@ def turn_to(robot: Robot, heading: float) -> None:
     after stopping we look again and correct while the error is over TOLERANCE.
     """
     for _ in range(3):
-        error = angle_to(heading, robot.pose.theta)
+        error = wrap_angle(heading - robot.pose.theta)
         if abs(error) < TOLERANCE:
             return
         direction = math.copysign(1.0, error)  # +1: counter-clockwise
         speed = 0.0
-        while (left := direction * angle_to(heading, robot.pose.theta)) > 0:
+        while (left := direction * wrap_angle(heading - robot.pose.theta)) > 0:
             wanted = TURN if left > CREEP_ANGLE else CREEP
             if wanted != speed:
                 speed = wanted

@@ -26,6 +26,7 @@ import argparse
 import math
 import time
 
+from icefloe.angles import wrap_angle
 from icefloe.client import Robot, add_robot_arguments, robot_arguments
 from icefloe.schemas.messages import ExternalPose
 
@@ -41,11 +42,6 @@ MOVES = 12
 """Give up after this many moves."""
 BLIND_S = 10.0
 """No new external pose for this long: stop trying, s."""
-
-
-def angle_to(target: float, theta: float) -> float:
-    """Signed angle from ``theta`` to ``target``, wrapped to (-pi, pi], rad."""
-    return math.atan2(math.sin(target - theta), math.cos(target - theta))
 
 
 def look(robot: Robot) -> ExternalPose:
@@ -80,18 +76,18 @@ def main() -> None:
         for move in range(1, MOVES + 1):
             distance = math.hypot(args.x - here.x, args.y - here.y)
             if distance > POSITION_TOLERANCE:
-                facing = angle_to(math.atan2(args.y - here.y, args.x - here.x), here.theta)
+                facing = wrap_angle(math.atan2(args.y - here.y, args.x - here.x) - here.theta)
                 if abs(facing) > HEADING_TOLERANCE:
                     turn(robot, facing)
                     here = look(robot)
-                    facing = angle_to(math.atan2(args.y - here.y, args.x - here.x), here.theta)
+                    facing = wrap_angle(math.atan2(args.y - here.y, args.x - here.x) - here.theta)
                 # Drive what lies ahead along our heading (less, if we are not quite facing it).
                 ahead = distance * math.cos(facing)
                 if ahead > 0.005:
                     robot.drive(SPEED, 0.0, duration=ahead / SPEED)
                 what = "drove"
             else:
-                error = angle_to(args.theta, here.theta)
+                error = wrap_angle(args.theta - here.theta)
                 if abs(error) <= HEADING_TOLERANCE:
                     break
                 turn(robot, error)
@@ -99,7 +95,7 @@ def main() -> None:
             here = look(robot)
             print(f"move {move} ({what}): x {here.x:.3f} m, y {here.y:.3f} m, theta {math.degrees(here.theta):.1f}°")
         distance = math.hypot(here.x - args.x, here.y - args.y)
-        error = abs(angle_to(args.theta, here.theta))
+        error = abs(wrap_angle(args.theta - here.theta))
         done = distance <= POSITION_TOLERANCE and error <= HEADING_TOLERANCE
         print(f"{'goal reached' if done else 'gave up'}: x {here.x:.3f} m, y {here.y:.3f} m, "
               f"theta {math.degrees(here.theta):.1f}° ({distance * 1000:.0f} mm, "

@@ -47,7 +47,7 @@ import numpy as np
 import zenoh
 
 from . import config as config_mod
-from .config import RobotConfig
+from .config import RobotConfig, robot_info
 from .credentials import read as read_credentials
 from .errors import BadPayload, ConfigError, IcefloeError, MotionStopped, MotionTimeout, NotConfirmed, NotReachable
 from .logs import LimitedLog
@@ -804,8 +804,6 @@ class AsyncRobot:
             self._info_source = self.node.key(keys.INFO)
             return self._info
         except NotReachable:
-            from .services.info.__main__ import robot_info
-
             self._info_source = self.config.source or "the default robot config"
             return robot_info(self.config)
 

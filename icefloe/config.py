@@ -37,6 +37,7 @@ from msgspec import Meta
 
 from . import paths
 from .errors import ConfigError
+from .schemas import messages as m
 
 DEFAULT_ROBOT = "sim"
 """The robot a command means when none is named: the simulated one."""
@@ -734,3 +735,17 @@ def load(name_or_path: str | os.PathLike[str] | None = None, *, credentials: boo
     as `parse`."""
     p = find(name_or_path)
     return parse(_read(p.resolve()), str(p), credentials=credentials)
+
+
+def robot_info(config: RobotConfig) -> m.RobotInfo:
+    """What the robot is, as the ``info`` query answers it (the info service), and as a client
+    takes it from the config while that service does not answer."""
+    return m.RobotInfo(
+        name=config.name,
+        board=config.board.kind,
+        backend=config.board.backend,
+        wheel_diameter=config.geometry.wheel_diameter,
+        track=config.geometry.track,
+        ticks_per_rev=config.geometry.ticks_per_rev,
+        max_wheel_speed=config.hwbridge.max_wheel_speed,
+    )

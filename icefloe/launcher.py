@@ -418,7 +418,7 @@ def problems(config: RobotConfig, services: Sequence[str]) -> list[str]:
     if "localizer" in services:
         check(lambda: load_world(config.localizer.world))
     if "camera" in services:
-        from .services.camera.__main__ import make_detector  # dictionary, calibration file
+        from .services.camera.detection import make_detector  # dictionary, calibration file
 
         check(lambda: make_detector(config))
     z = config.zenoh

@@ -36,6 +36,7 @@ try:
 except ImportError as exc:  # an optional extra: say how to get it, once, when used
     raise ImportError(f"icefloe.rtb needs the Robotics Toolbox: pip install \"icefloe[rtb]\" ({exc})") from None
 
+from .angles import wrap_angle
 from .schemas import messages as m
 from .worldmap import WorldMap
 
@@ -43,10 +44,6 @@ MAX_ID = 999
 """Largest marker id the adapters pass on (ArUco's DICT_4X4_100 has ids 0-99)."""
 MAX_PENDING = 100_000
 """Messages a `Feed` holds at most before it drops the oldest (a stalled EKF must not grow memory)."""
-
-
-def _wrap(a: float) -> float:
-    return math.atan2(math.sin(a), math.cos(a))
 
 
 @dataclass(frozen=True)
@@ -117,7 +114,7 @@ class Feed:
                 dx, dy = new[0] - x0, new[1] - y0
                 # forward travel (negative when reversing) and turn: the unicycle's odometry
                 self._odo[0] += dx * math.cos(th0) + dy * math.sin(th0)
-                self._odo[1] += _wrap(new[2] - th0)
+                self._odo[1] += wrap_angle(new[2] - th0)
             self._odom = new
         elif isinstance(msg, m.Landmarks):
             odo = (self._odo[0], self._odo[1])

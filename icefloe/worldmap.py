@@ -87,14 +87,29 @@ World frame: x and y on the floor, z up, angles counter-clockwise from +x.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
 
 from . import paths
 from .config import field_error, read_toml
 from .errors import ConfigError
+
+
+def check_finite(item: msgspec.Struct, names: Iterable[str]) -> None:
+    """ValueError naming the first field of ``names`` that is not a finite number (TOML has nan and inf)."""
+    for name in names:
+        if not math.isfinite(getattr(item, name)):
+            raise ValueError(f"`{name}` must be a finite number")
+
+
+def check_positive(item: msgspec.Struct, *names: str) -> None:
+    """ValueError naming the fields of ``names`` if any is not > 0 (a size)."""
+    if any(getattr(item, name) <= 0 for name in names):
+        raise ValueError(f"{' and '.join(f'`{name}`' for name in names)} must be > 0")
+
 
 
 class Marker(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -113,9 +128,7 @@ class Marker(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Direction the marker's face points, rad, counter-clockwise from +x."""
 
     def __post_init__(self) -> None:
-        for key in ("x", "y", "z", "size", "yaw"):
-            if not math.isfinite(getattr(self, key)):
-                raise ValueError(f"`{key}` must be a finite number")
+        check_finite(self, ("x", "y", "z", "size", "yaw"))
 
 
 class Board(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -144,9 +157,7 @@ class Board(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """ChArUco: the markers' dictionary (not the landmarks': the localizer must not take them for landmarks)."""
 
     def __post_init__(self) -> None:
-        for key in ("square", "x", "y", "z", "yaw", "tilt", "marker"):
-            if not math.isfinite(getattr(self, key)):
-                raise ValueError(f"`{key}` must be a finite number")
+        check_finite(self, ("square", "x", "y", "z", "yaw", "tilt", "marker"))
         if self.kind == "charuco" and not 0 < self.marker < self.square:
             raise ValueError("`marker` must be > 0 and smaller than `square` for a charuco board")
 
@@ -165,22 +176,27 @@ class FloorMarker(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Where the marker's top edge points, rad, counter-clockwise from +x."""
 
     def __post_init__(self) -> None:
-        for key in ("x", "y", "size", "yaw"):
-            if not math.isfinite(getattr(self, key)):
-                raise ValueError(f"`{key}` must be a finite number")
+        check_finite(self, ("x", "y", "size", "yaw"))
 
 
 Rectangle = tuple[float, float, float, float, float]
 """An obstacle's footprint: centre x, centre y (m), half length along yaw, half width (m), yaw (rad)."""
 
 
-class _Obstacle(msgspec.Struct, frozen=True, forbid_unknown_fields=True, tag_field="kind"):
+class _Obstacle(msgspec.Struct, frozen=True, forbid_unknown_fields=True, tag_field="kind", kw_only=True):
+    height: float = 0.3
+    """m. (Keyword-only: it comes after the fields of each kind, as written in a world file.)"""
+    sizes: ClassVar[tuple[str, ...]] = ()
+    """The kind's fields that must be > 0, as ``height`` must."""
+
     def __post_init__(self) -> None:
-        for key in self.__struct_fields__:
-            if not math.isfinite(getattr(self, key)):
-                raise ValueError(f"`{key}` must be a finite number")
-        if self.height <= 0:
-            raise ValueError("`height` must be > 0")
+        check_finite(self, self.__struct_fields__)
+        check_positive(self, "height")
+        check_positive(self, *self.sizes)
+
+    def rectangle(self) -> Rectangle:
+        """The obstacle's footprint on the floor."""
+        raise NotImplementedError
 
 
 class Wall(_Obstacle, frozen=True, tag="wall"):
@@ -194,13 +210,10 @@ class Wall(_Obstacle, frozen=True, tag="wall"):
     y1: float
     thickness: float = 0.05
     """m."""
-    height: float = 0.3
-    """m."""
+    sizes = ("thickness",)
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.thickness <= 0:
-            raise ValueError("`thickness` must be > 0")
         if math.hypot(self.x1 - self.x0, self.y1 - self.y0) == 0:
             raise ValueError("the wall's two ends (x0, y0) and (x1, y1) are the same point")
 
@@ -222,13 +235,7 @@ class Box(_Obstacle, frozen=True, tag="box"):
     """m, across yaw."""
     yaw: float = 0.0
     """rad, counter-clockwise from +x."""
-    height: float = 0.3
-    """m."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.length <= 0 or self.width <= 0:
-            raise ValueError("`length` and `width` must be > 0")
+    sizes = ("length", "width")
 
     def rectangle(self) -> Rectangle:
         return (self.x, self.y, self.length / 2, self.width / 2, self.yaw)
@@ -266,9 +273,7 @@ class Block(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Faces that carry the marker, counter-clockwise from face 0."""
 
     def __post_init__(self) -> None:
-        for key in ("x", "y", "z", "side", "size", "yaw"):
-            if not math.isfinite(getattr(self, key)):
-                raise ValueError(f"`{key}` must be a finite number")
+        check_finite(self, ("x", "y", "z", "side", "size", "yaw"))
         if self.size >= self.side:
             raise ValueError(f"`size` ({self.size} m) must be less than `side` ({self.side} m): "
                              "the marker is printed on a face of the cube")

@@ -39,9 +39,9 @@ import cv2
 import numpy as np
 
 from icefloe.config import RobotConfig
-from icefloe.services.camera import calibration
-from icefloe.services.camera.geometry import Intrinsics, Mount, range_bearing
-from icefloe.worldmap import Board, WorldMap
+from icefloe.vision import calibration
+from icefloe.vision.geometry import Intrinsics, Mount, range_bearing
+from icefloe.worldmap import Board, WorldMap, load_world
 
 NEAR = 0.02
 """Points closer than this in front of the lens (m) are not drawn."""
@@ -247,6 +247,13 @@ class CameraRenderer:
         self._noise_bank = [
             self._rng.normal(0.0, noise, (self.height, self.width)).astype(np.int16) for _ in range(8)
         ]
+
+    @classmethod
+    def of_robot(cls, config: RobotConfig) -> CameraRenderer:
+        """The simulated camera of a robot: its world ``sim.world``, the camera's mount and dictionary,
+        and the lens ``[sim.lens]``, not what ``[camera]`` believes (calibrating must find it)."""
+        return cls(load_world(config.sim.world), true_intrinsics(config), Mount.from_config(config.camera),
+                   config.camera.dictionary)
 
     # ------------------------------------------------------------------ drawing
 

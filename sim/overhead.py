@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from icefloe.services.camera.geometry import Intrinsics
-from icefloe.services.extloc.geometry import CameraPose, flat_square_corners, project
+from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.overhead import CameraPose, flat_square_corners, project
 from icefloe.worldmap import WorldMap
 
 SUPERSAMPLE = 4

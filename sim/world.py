@@ -38,6 +38,7 @@ import random
 import sys
 import threading
 
+from icefloe.angles import wrap_angle
 from icefloe.config import Geometry
 from icefloe.worldmap import Obstacle, clearance
 
@@ -70,12 +71,6 @@ PLACE_LIMIT = 1000.0
 """`World.place` refuses a position farther than this from the origin, m (no room is that big)."""
 
 WHEELS = ("left", "right")
-
-
-def wrap_angle(theta: float) -> float:
-    """Wrap an angle to (-pi, pi], rad."""
-    wrapped = math.remainder(theta, math.tau)
-    return math.pi if wrapped == -math.pi else wrapped
 
 
 class World:

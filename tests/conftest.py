@@ -29,6 +29,7 @@ from icefloe import config as config_mod
 from icefloe.config import RobotConfig
 from icefloe.deploy import SERVICE_ENV
 from icefloe.runtime import Node
+from icefloe.testing import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 SIM_CONFIG = ROOT / "deploy" / "robots" / "sim.toml"
@@ -39,12 +40,6 @@ SIM_CONFIG = ROOT / "deploy" / "robots" / "sim.toml"
 # A Python handler (unlike SIG_IGN) is reset to the default on exec: the programs get a real Ctrl-C.
 if signal.getsignal(SIGINT) is signal.SIG_IGN:
     signal.signal(SIGINT, signal.default_int_handler)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def robot_config(folder: Path, name: str, extra_toml: str = "") -> Path:

@@ -19,7 +19,7 @@ from test_hwbridge_helpers import sim_state
 
 from icefloe import config as config_mod
 from icefloe.schemas import keys
-from icefloe.services.camera.geometry import Intrinsics
+from icefloe.vision.geometry import Intrinsics
 
 pytestmark = pytest.mark.slow
 

@@ -15,9 +15,9 @@ import pytest
 from icefloe import config as config_mod
 from icefloe.cli.calibrate import calibration_paths, point_config_at
 from icefloe.errors import ConfigError
-from icefloe.services.camera import calibration as cal
-from icefloe.services.camera.geometry import Mount, load_calibration, save_calibration
 from icefloe.sim.camera import CameraRenderer, true_intrinsics
+from icefloe.vision import calibration as cal
+from icefloe.vision.geometry import Mount, load_calibration, save_calibration
 from icefloe.worldmap import parse_world
 
 LENS = {"fx": 540.0, "fy": 536.0, "cx": 327.0, "cy": 244.0, "distortion": [-0.15, 0.09, 0.0, 0.0, 0.0]}

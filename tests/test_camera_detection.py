@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from icefloe import config as config_mod
-from icefloe.services.camera.__main__ import make_detector
-from icefloe.services.camera.detection import BadFrame, check_frame
-from icefloe.services.camera.geometry import Intrinsics, Mount
+from icefloe.services.camera.detection import make_detector
 from icefloe.sim.camera import CameraRenderer
+from icefloe.vision.geometry import Intrinsics, Mount
+from icefloe.vision.sources import BadFrame, check_frame
 from icefloe.worldmap import load_world
 
 

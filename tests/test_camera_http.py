@@ -30,8 +30,8 @@ from icefloe import config as config_mod
 from icefloe.cli.calibrate import sizes_note
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.camera.geometry import Intrinsics, save_calibration
 from icefloe.services.webapi.camera import MAX_WATCHERS, STALL_S
+from icefloe.vision.geometry import Intrinsics, save_calibration
 
 HEAD = b"--frame\r\nContent-Type: image/jpeg\r\n\r\n"
 CALIBRATED = Intrinsics(np.array([[505.6, 0.0, 322.4], [0.0, 504.9, 241.7], [0.0, 0.0, 1.0]]),

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from icefloe import config as config_mod
-from icefloe.services.camera.__main__ import make_detector
-from icefloe.services.camera.geometry import Mount
+from icefloe.services.camera.detection import make_detector
 from icefloe.sim.camera import NEAR, CameraRenderer, clip_near, obstacle_faces, true_intrinsics
+from icefloe.vision.geometry import Mount
 from icefloe.worldmap import WorldMap, load_world, parse_world
 
 BOX = {"kind": "box", "x": 1.5, "y": -0.15, "length": 0.3, "width": 0.4, "height": 0.3}

@@ -12,8 +12,8 @@ from conftest import Robot, wait_for
 
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.camera.geometry import Intrinsics, Mount
 from icefloe.sim.camera import CameraRenderer
+from icefloe.vision.geometry import Intrinsics, Mount
 from icefloe.worldmap import load_world
 
 

@@ -20,6 +20,7 @@ import msgspec
 import pytest
 from conftest import ROOT, wait_for
 
+from icefloe.angles import wrap_angle
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
@@ -183,42 +184,25 @@ async def test_node_consumer_validates_captured_messages(robot, node_modules, tm
     assert summary == {"valid": 4, "invalid": 2}
 
 
-CAMERA_READY = (ROOT / "services" / "camera" / "__main__.py").exists()
 MARKER_5 = (1.2, 2.0)
 """Marker 5 of deploy/worlds/lab.toml: 59° to the left of the start pose, out of view at first."""
 
 
-async def play_camera(node, marker: tuple[float, float], half_fov: float = math.radians(30)) -> None:
-    """Stand-in for the camera service while it is being written: publishes marker 5's range and
-    bearing, from the simulator's truth, whenever it is within the camera's field of view."""
-    landmarks = node.publisher(keys.LANDMARKS)
-    async for t in node.subscribe(keys.TRUTH):
-        dx, dy = marker[0] - t.x, marker[1] - t.y
-        bearing = math.atan2(dy, dx) - t.theta
-        bearing = math.atan2(math.sin(bearing), math.cos(bearing))
-        seen = [m.Landmark(id=5, range=math.hypot(dx, dy), bearing=bearing)] if abs(bearing) < half_fov else []
-        landmarks.put(m.Landmarks(stamp=t.stamp, landmarks=seen))
-        await asyncio.sleep(1 / 15)  # the camera's frame rate
-
-
 async def test_follow_marker_reaches_its_marker(robot):
-    start_sim_robot(robot, *(["camera"] if CAMERA_READY else []))
+    start_sim_robot(robot, "camera")
     async with robot.node("tester") as node:
-        camera = None if CAMERA_READY else asyncio.create_task(play_camera(node, MARKER_5))
         truths = Truths(node)
         await wait_for(lambda: truths.samples, timeout=20)
         out = await run_example("examples/follow_marker.py", "--config", str(robot.config_path),
                                 "--marker", "5", "--stop", "0.4")
         await asyncio.sleep(1.0)  # stopped and settled
         truths.close()
-        if camera is not None:
-            camera.cancel()
         end = truths.last
         distance = math.hypot(MARKER_5[0] - end.x, MARKER_5[1] - end.y)
         assert "reached marker 5" in out
         assert 0.25 < distance < 0.6, f"ended {distance:.2f} m from the marker:\n{out}"
-        facing = math.atan2(MARKER_5[1] - end.y, MARKER_5[0] - end.x) - end.theta
-        assert abs(math.atan2(math.sin(facing), math.cos(facing))) < math.radians(15)
+        facing = wrap_angle(math.atan2(MARKER_5[1] - end.y, MARKER_5[0] - end.x) - end.theta)
+        assert abs(facing) < math.radians(15)
 
 
 @pytest.mark.timeout(300)

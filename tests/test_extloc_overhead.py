@@ -10,10 +10,10 @@ import pytest
 
 from icefloe import config as config_mod
 from icefloe.errors import ConfigError
-from icefloe.services.camera.geometry import Intrinsics
 from icefloe.services.extloc import locate
-from icefloe.services.extloc.geometry import CameraPose, flat_square_corners, project
 from icefloe.sim.overhead import OverheadRenderer, RobotView
+from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.overhead import CameraPose, flat_square_corners, project
 from icefloe.worldmap import load_world, parse_world
 
 DICTIONARY = "DICT_4X4_100"
@@ -116,7 +116,7 @@ def test_overhead_calibrate_command_from_an_image_file(camera, tmp_path, capsys)
     import cv2
 
     from icefloe.cli import main
-    from icefloe.services.extloc.geometry import load_pose
+    from icefloe.vision.overhead import load_pose
 
     _, truth, renderer = camera
     picture = tmp_path / "overhead.png"
@@ -196,7 +196,7 @@ async def test_overhead_old_api_answers_hostile_requests_in_bounded_work() -> No
 def test_overhead_lens_distortion_is_undone_before_the_floor() -> None:
     """With a calibration's distortion (as `icefloe calibrate` writes it), a pixel goes back to the
     very point on the plane it was projected from; ignoring the distortion would be centimetres off."""
-    from icefloe.services.extloc.geometry import to_plane
+    from icefloe.vision.overhead import to_plane
 
     k = np.array([[420.0, 0.0, 645.0], [0.0, 418.0, 355.0], [0.0, 0.0, 1.0]])
     lens = Intrinsics(k, np.array([-0.28, 0.09, 0.001, -0.0005, -0.01]), 1280, 720)

@@ -31,7 +31,8 @@ from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
 sys.path.insert(0, str(ROOT / "bench"))
-from lab_harness import Lab, Proc, free_port
+from common import free_port
+from lab_harness import Lab, Proc
 from lab_scale import guest_config, laptop_config
 
 STARTS = [(0.4, 0.3, 1.0), (1.6, -0.85, 0.0)]

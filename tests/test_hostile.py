@@ -23,7 +23,7 @@ import hostile_input as hostile  # the bench script is the harness
 from icefloe.runtime import BUS_LOG_BURST, BUS_LOG_RATE
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
-from icefloe.services.webapi.__main__ import KEEPALIVE_S
+from icefloe.services.webapi.server import KEEPALIVE_S
 
 
 async def wait_listening(port: int, proc, timeout: float = 30.0) -> None:

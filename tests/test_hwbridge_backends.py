@@ -20,11 +20,11 @@ import pytest
 
 from icefloe.config import RobotConfig
 from icefloe.errors import BoardError
+from icefloe.ordering import Origin
 from icefloe.schemas import messages as m
 from icefloe.services.hwbridge import control
 from icefloe.services.hwbridge.board import Board
 from icefloe.services.hwbridge.bridge import Bridge
-from icefloe.services.hwbridge.ordering import Origin
 from icefloe.services.hwbridge.penguinpi import OPEN_FRAMES, STOP_FRAMES, PenguinPiBoard, board_text, set_gains
 from icefloe.services.hwbridge.rt import Cycle
 from icefloe.services.hwbridge.shm import IO_LED, IO_TEXT, MSG_WARNING, Shared

@@ -19,11 +19,11 @@ from test_hwbridge_backends import BoardEnd
 
 from icefloe.config import Geometry, RobotConfig
 from icefloe.errors import NotConfirmed
+from icefloe.ordering import Origin
 from icefloe.schemas import messages as m
 from icefloe.services.hwbridge.board import Board
 from icefloe.services.hwbridge.bridge import Bridge
 from icefloe.services.hwbridge.icoboard import IcoBoardBoard
-from icefloe.services.hwbridge.ordering import Origin
 from icefloe.services.hwbridge.penguinpi import REPLY_TIMEOUT_NS, PenguinPiBoard
 from icefloe.services.hwbridge.rt import Cycle
 from icefloe.services.hwbridge.shm import STATE_FIELDS, Shared

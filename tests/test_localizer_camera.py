@@ -26,10 +26,10 @@ import pytest
 from conftest import Robot, wait_for
 from test_localizer_sim import at, check_exits, collect, drive_legs, error, error_near
 
+from icefloe.angles import wrap_angle
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.camera.geometry import range_bearing
-from icefloe.services.odometry.model import wrap_angle
+from icefloe.vision.geometry import range_bearing
 from icefloe.worldmap import load_world
 
 pytestmark = pytest.mark.slow

@@ -1,4 +1,4 @@
-"""Unit tests of the pure EKF (services/localizer/ekf.py)."""
+"""Unit tests of the pure EKF (icefloe/estimation/ekf.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import random
 import numpy as np
 import pytest
 
-from icefloe.services.localizer.ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sighting
-from icefloe.services.odometry.model import wrap_angle
+from icefloe.angles import wrap_angle
+from icefloe.estimation.ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sighting
 from icefloe.worldmap import load_world
 
 LAB = {m.id: (m.x, m.y) for m in load_world("lab").markers}
@@ -133,8 +133,8 @@ def test_late_frames_are_brought_up_to_date_with_odometry() -> None:
     """Turning on the spot at 1.5 rad/s; each frame arrives 80 ms after it was taken."""
     import logging
 
+    from icefloe.estimation.localizer import Localizer
     from icefloe.schemas import messages as m
-    from icefloe.services.localizer.tracker import Localizer
 
     loc = Localizer(_config(initial_sigma_xy=0.01, initial_sigma_theta=0.01), logging.getLogger("test"))
     t0, rate = 1_000_000_000_000, 1.5
@@ -164,8 +164,8 @@ def test_frames_newer_than_the_odometry_are_moved_back_along_its_speeds() -> Non
     """Turning on the spot at 1.5 rad/s; each frame is taken 15 ms after the latest odometry pose."""
     import logging
 
+    from icefloe.estimation.localizer import Localizer
     from icefloe.schemas import messages as m
-    from icefloe.services.localizer.tracker import Localizer
 
     loc = Localizer(_config(initial_sigma_xy=0.01, initial_sigma_theta=0.01), logging.getLogger("test"))
     t0, rate, ahead = 1_000_000_000_000, 1.5, 15_000_000
@@ -187,8 +187,8 @@ def test_frames_newer_than_the_odometry_are_moved_back_along_its_speeds() -> Non
 def test_initial_pose_from_the_first_frame_with_two_landmarks() -> None:
     import logging
 
+    from icefloe.estimation.localizer import Localizer
     from icefloe.schemas import messages as m
-    from icefloe.services.localizer.tracker import Localizer
 
     loc = Localizer(_config(init="landmarks", initial_x=9.0), logging.getLogger("test"))
     truth = (0.4, 0.3, 1.2)
@@ -205,8 +205,8 @@ def test_initial_pose_from_the_first_frame_with_two_landmarks() -> None:
 def test_kidnapped_robot_is_found_again() -> None:
     import logging
 
+    from icefloe.estimation.localizer import Localizer
     from icefloe.schemas import messages as m
-    from icefloe.services.localizer.tracker import Localizer
 
     loc = Localizer(_config(initial_sigma_xy=0.01, initial_sigma_theta=0.01, relocalize_after=10),
                     logging.getLogger("test"))

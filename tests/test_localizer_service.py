@@ -9,10 +9,10 @@ import time
 
 from conftest import wait_for
 
+from icefloe.angles import wrap_angle
 from icefloe.errors import EXIT_CONFIG
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.odometry.model import wrap_angle
 from icefloe.worldmap import load_world
 
 LAB = {mk.id: (mk.x, mk.y) for mk in load_world("lab").markers}

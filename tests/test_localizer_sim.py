@@ -2,7 +2,7 @@
 
 The test drives the robot with ``cmd/twist`` and plays the camera: it turns
 each ``sim/truth`` sample into the landmark sightings the camera would make
-(`simrun.Camera`: field of view, range, noise, seeded) and publishes them on
+(`icefloe.testing.TruthCamera`: field of view, range, noise, seeded) and publishes them on
 ``camera/landmarks``. Everything else is the real stack over a real router.
 """
 
@@ -16,10 +16,10 @@ import random
 
 from conftest import wait_for
 
+from icefloe.angles import wrap_angle
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.localizer.simrun import Camera, Result, Scenario
-from icefloe.services.odometry.model import wrap_angle
+from icefloe.testing import TruthCamera, play_camera
 
 LEGS = [(0.2, 0.0, 2.5), (0.0, 1.5, math.pi / 3)] * 4  # (v m/s, w rad/s, s): a rough 0.5 m square
 
@@ -29,32 +29,25 @@ async def collect(sub, into: list) -> None:
         into.append(msg)
 
 
-async def drive_square(robot, *, play_camera: bool) -> tuple[list, list, list, Result]:
-    """Start the stack, drive LEGS, stop; return truth, odom/pose, loc/pose messages and camera stats."""
-    procs = [robot.start(s) for s in ("sim", "hwbridge", "odometry", *(("localizer",) if play_camera else ()))]
+async def drive_square(robot, *, with_camera: bool) -> tuple[list, list, list, TruthCamera]:
+    """Start the stack, drive LEGS, stop; return truth, odom/pose, loc/pose messages and the camera played."""
+    procs = [robot.start(s) for s in ("sim", "hwbridge", "odometry", *(("localizer",) if with_camera else ()))]
     truth: list[m.Truth] = []
     odom: list[m.Pose] = []
     loc: list[m.PoseEstimate] = []
-    stats = Result()
+    camera = TruthCamera(robot.config, random.Random(7))
     async with robot.node("tester") as node:
-        camera = Camera(robot.config, Scenario(), random.Random(7))
-        cam_pub = node.publisher(keys.LANDMARKS)
-
-        async def play() -> None:
-            async for t in node.subscribe(keys.TRUTH, latest=False):
-                truth.append(t)
-                if play_camera and len(truth) % 3 == 0:  # 50 Hz truth -> ~17 Hz camera
-                    cam_pub.put(camera.frame((t.x, t.y, t.theta), t.stamp, stats))
-
-        tasks = [asyncio.create_task(play()),
+        truths = (play_camera(node, camera, on_truth=lambda t, _frame: truth.append(t)) if with_camera else
+                  collect(node.subscribe(keys.TRUTH, latest=False), truth))
+        tasks = [asyncio.create_task(truths),
                  asyncio.create_task(collect(node.subscribe(keys.ODOM_POSE, latest=False), odom)),
                  asyncio.create_task(collect(node.subscribe(keys.LOC_POSE, latest=False), loc))]
-        await wait_for(lambda: truth and odom and (loc or not play_camera), timeout=40)
+        await wait_for(lambda: truth and odom and (loc or not with_camera), timeout=40)
         await drive_legs(node)
         for task in tasks:
             task.cancel()
     check_exits(procs)
-    return truth, odom, loc, stats
+    return truth, odom, loc, camera
 
 
 async def drive_legs(node, legs: list[tuple[float, float, float]] = LEGS) -> None:
@@ -105,7 +98,7 @@ def error_near(est, truth: list[m.Truth]) -> tuple[float, float]:
 
 async def test_odometry_follows_the_simulated_robot_without_slip(make_robot) -> None:
     robot = make_robot("[sim]\nseed = 3\nslip = 0.0\nencoder_noise = 0.0\n")
-    truth, odom, _, _ = await drive_square(robot, play_camera=False)
+    truth, odom, _, _ = await drive_square(robot, with_camera=False)
     final_pos, final_heading = error(odom[-1], truth[-1])
     moved = sum(math.hypot(b.x - a.x, b.y - a.y) for a, b in itertools.pairwise(truth))
     print(f"\nno slip, {moved:.2f} m: odometry final error {final_pos * 100:.2f} cm "
@@ -118,18 +111,18 @@ async def test_localizer_tracks_the_simulated_robot_with_slip(make_robot) -> Non
     robot = make_robot("[sim]\nseed = 5\nslip = 0.1\nencoder_noise = 0.02\n\n"
                        "[localizer]\ninitial_x = 0.0\ninitial_y = 0.0\ninitial_theta = 0.0\n"
                        "initial_sigma_xy = 0.01\ninitial_sigma_theta = 0.02\n")
-    truth, odom, loc, stats = await drive_square(robot, play_camera=True)
+    truth, odom, loc, camera = await drive_square(robot, with_camera=True)
     moving = [e for e in loc if truth[0].stamp < e.stamp <= truth[-1].stamp]
     errors = [error_near(e, truth) for e in moving]
     worst_pos = max(p for p, _ in errors)
     worst_heading = max(h for _, h in errors)
     exact = [error(e, at(truth, e.stamp)) for e in moving]
     odo_pos, odo_heading = error(odom[-1], truth[-1])
-    print(f"\nslip 0.1: {len(moving)} loc/pose, {stats.sightings} sightings; localizer max error "
+    print(f"\nslip 0.1: {len(moving)} loc/pose, {camera.sightings} sightings; localizer max error "
           f"{worst_pos * 100:.2f} cm {math.degrees(worst_heading):.2f} deg; "
           f"odometry final {odo_pos * 100:.2f} cm {math.degrees(odo_heading):.2f} deg; "
           f"(at the exact stamps: {max(p for p, _ in exact) * 100:.2f} cm "
           f"{math.degrees(max(h for _, h in exact)):.2f} deg)")
-    assert len(moving) > 100 and stats.sightings > 200
+    assert len(moving) > 100 and camera.sightings > 200
     assert worst_pos < 0.05
     assert worst_heading < math.radians(3.0)

@@ -1,5 +1,5 @@
 """The "done" figures as a pure simulation: the simulator's World driven around a 1 m square four times,
-the real odometry model and the real localizer (tracker.Localizer) compared against the true pose.
+the real odometry model and the real localizer (`icefloe.estimation.localizer`) against the true pose.
 
 Seeded, simulated time: deterministic. Prints the figures (pytest -s shows them).
 """
@@ -11,7 +11,7 @@ import math
 import pytest
 
 from icefloe import config as config_mod
-from icefloe.services.localizer.simrun import Scenario, square_run
+from icefloe.estimation.simrun import Scenario, square_run
 
 CONFIG = config_mod.load()
 

@@ -17,12 +17,12 @@ import pytest
 
 from icefloe import config as config_mod
 from icefloe.errors import ConfigError
+from icefloe.estimation.blocks import to_centres
+from icefloe.estimation.localizer import Localizer
 from icefloe.schemas import messages as m
 from icefloe.services.camera.detection import Detector
-from icefloe.services.camera.geometry import Intrinsics, Mount
-from icefloe.services.localizer.blocks import to_centres
-from icefloe.services.localizer.tracker import Localizer
 from icefloe.sim.camera import CameraRenderer
+from icefloe.vision.geometry import Intrinsics, Mount
 from icefloe.worldmap import load_world, parse_world
 
 BLOCK = {"id": 12, "x": 1.0, "y": 0.0, "z": 0.10, "side": 0.16, "size": 0.12, "yaw": 0.0}

@@ -1,4 +1,4 @@
-"""Unit tests of the pure dead-reckoning model (services/odometry/model.py)."""
+"""Unit tests of the pure dead-reckoning model (icefloe/estimation/odometry.py)."""
 
 from __future__ import annotations
 
@@ -6,14 +6,13 @@ import math
 
 import pytest
 
-from icefloe.services.odometry.model import (
+from icefloe.estimation.odometry import (
     Event,
     Geometry,
     Limits,
     Odometry,
     count_delta,
     sinc,
-    wrap_angle,
 )
 
 GEO = Geometry(wheel_diameter=0.065, track=0.156, ticks_per_rev=384)
@@ -46,16 +45,6 @@ def fresh(**limits: float) -> Odometry:
 
 
 # ---------------------------------------------------------------- helpers
-
-
-@pytest.mark.parametrize(("a", "expected"), [
-    (0.0, 0.0), (math.pi, math.pi), (-math.pi, math.pi), (3 * math.pi, math.pi),
-    (1.5 * math.pi, -0.5 * math.pi), (-1.5 * math.pi, 0.5 * math.pi), (2 * math.pi + 0.1, 0.1),
-    (-7.0, -7.0 + 2 * math.pi),
-])
-def test_wrap_angle_is_in_minus_pi_to_pi(a: float, expected: float) -> None:
-    assert wrap_angle(a) == pytest.approx(expected, abs=1e-12)
-    assert -math.pi < wrap_angle(a) <= math.pi
 
 
 def test_sinc_is_continuous_at_zero() -> None:
@@ -259,8 +248,7 @@ def test_non_integer_samples_are_ignored(sample: tuple) -> None:
 def test_event_log_reports_each_kind_then_limits_a_storm() -> None:
     import logging
 
-    from icefloe.services.odometry.__main__ import EventLog
-    from icefloe.services.odometry.model import Step
+    from icefloe.estimation.odometry import EventLog, Step
 
     lines: list[str] = []
 

@@ -13,9 +13,9 @@ from pathlib import Path
 from conftest import wait_for
 
 from icefloe.errors import EXIT_CONFIG
+from icefloe.estimation.odometry import Geometry
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.odometry.model import Geometry
 
 K = Geometry(0.065, 0.156, 384).metres_per_tick
 MS = 1_000_000

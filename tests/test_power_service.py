@@ -15,13 +15,19 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from conftest import Robot, wait_for
 
 from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.oled.frame import Frame
-from icefloe.services.power.__main__ import READ_PERIOD_S
+from icefloe.services.power.battery import READ_PERIOD_S
+
+
+def screen(frame: m.OledFrame) -> np.ndarray:
+    """The pixels of an ``oled/frame`` (1 = lit), unpacked as the contract packs them: 1 bit a
+    pixel, row-major, most significant bit first. (What the oled service draws is its own tests'.)"""
+    return np.unpackbits(np.frombuffer(frame.pixels, np.uint8)).reshape(frame.height, frame.width)
 
 BUTTON, REQUEST, ACK = 22, 10, 11
 
@@ -110,11 +116,11 @@ async def test_discharge_warns_then_shuts_down_in_order(make_robot: Any, tmp_pat
     robot: Robot = make_robot(power_toml(marker, pole=0.5, critical_readings=3))
     async with robot.node() as node:
         tester = FakeBridge(node)
-        frames: list[Frame] = []
+        frames: list[np.ndarray] = []
 
         async def watch_screen() -> None:
             async for f in node.subscribe(keys.OLED_FRAME, latest=False):
-                frames.append(Frame.unpack(f.pixels))
+                frames.append(screen(f))
 
         screen_task = asyncio.create_task(watch_screen())
         power = robot.start("power")
@@ -124,7 +130,7 @@ async def test_discharge_warns_then_shuts_down_in_order(make_robot: Any, tmp_pat
         node.publisher(keys.OLED_SCREEN).put(m.OledScreen(index=2))  # the battery screen
 
         def inverted() -> bool:  # the title bar's right corner is lit unless inverted
-            return not frames[-1].pixels[0:8, 126:128].any()
+            return not frames[-1][0:8, 126:128].any()
 
         states = []
         volts = 7.6

@@ -14,12 +14,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from conftest import Robot, wait_for
+from test_power_service import screen
 
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.oled.frame import Frame
 
 
 def config(marker: Path) -> str:
@@ -38,7 +39,7 @@ class Watch:
         self.battery: list[m.Battery] = []
         self.notices: list[m.ShutdownNotice] = []
         self.acks: list[m.GpioLevel] = []
-        self.frames: list[Frame] = []
+        self.frames: list[np.ndarray] = []
         self.logs: list[m.Log] = []
         self._tasks = [asyncio.create_task(self._collect(t)) for t in
                        (keys.BATTERY, keys.SHUTDOWN, keys.SIM_GPIO, keys.OLED_FRAME, keys.LOG)]
@@ -52,7 +53,7 @@ class Watch:
             elif isinstance(msg, m.GpioLevel) and msg.line == 11:
                 self.acks.append(msg)
             elif isinstance(msg, m.OledFrame):
-                self.frames.append(Frame.unpack(msg.pixels))
+                self.frames.append(screen(msg))
             elif isinstance(msg, m.Log):
                 self.logs.append(msg)
 
@@ -131,7 +132,7 @@ async def test_battery_drain_warns_inverts_and_shuts_down(make_robot: Any, tmp_p
         await wait_for(lambda: watch.battery[-1].state == "low", timeout=15)
         await wait_for(lambda: watch.power_said("battery low"), timeout=15)  # the log line comes on its own key
         # The display inverts: the title bar's right corner goes dark.
-        await wait_for(lambda: not watch.frames[-1].pixels[0:8, 126:128].any(), timeout=15)
+        await wait_for(lambda: not watch.frames[-1][0:8, 126:128].any(), timeout=15)
 
         # Below 6.5 V the PenguinPi firmware halts itself (and its readings): power
         # shuts down either on critical readings or on their silence, whichever first.

@@ -35,9 +35,9 @@ from mcap.reader import make_reader
 from test_bag_cli import cli, collect
 from test_localizer_sim import drive_legs
 
+from icefloe.angles import wrap_angle
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
-from icefloe.services.odometry.model import wrap_angle
 
 pytestmark = pytest.mark.slow
 

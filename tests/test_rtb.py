@@ -22,12 +22,12 @@ rtb_toolbox = pytest.importorskip("roboticstoolbox", reason="the Robotics Toolbo
                                   'pip install "icefloe[rtb]"')
 
 from icefloe import rtb  # noqa: E402
+from icefloe.angles import wrap_angle  # noqa: E402
 from icefloe.grid import from_world  # noqa: E402
 from icefloe.schemas import keys  # noqa: E402
 from icefloe.schemas import messages as m  # noqa: E402
 from icefloe.score.maths import score_map  # noqa: E402
-from icefloe.services.localizer.simrun import Camera, Result, Scenario  # noqa: E402
-from icefloe.services.odometry.model import wrap_angle  # noqa: E402
+from icefloe.testing import TruthCamera, play_camera  # noqa: E402
 from icefloe.worldmap import load_world  # noqa: E402
 
 WORLD = load_world("lab")
@@ -43,24 +43,18 @@ async def recorded_tour(robot) -> list:
     procs = [robot.start(s) for s in ("sim", "hwbridge", "odometry")]
     msgs: list = []
     async with robot.node("tester") as node:
-        camera = Camera(robot.config, Scenario(), random.Random(5))
-        cam = node.publisher(keys.LANDMARKS)
+        camera = TruthCamera(robot.config, random.Random(5))
 
-        async def play() -> None:
-            n = 0
-            async for t in node.subscribe(keys.TRUTH, latest=False):
-                msgs.append(t)
-                n += 1
-                if n % 3 == 0:  # ~17 frames a second, as the camera
-                    frame = camera.frame((t.x, t.y, t.theta), t.stamp, Result())
-                    cam.put(frame)
-                    msgs.append(frame)
+        def seen(truth: m.Truth, frame: m.Landmarks | None) -> None:
+            msgs.append(truth)
+            if frame is not None:
+                msgs.append(frame)
 
         async def odom() -> None:
             async for p in node.subscribe(keys.ODOM_POSE, latest=False):
                 msgs.append(p)
 
-        tasks = [asyncio.create_task(play()), asyncio.create_task(odom())]
+        tasks = [asyncio.create_task(play_camera(node, camera, on_truth=seen)), asyncio.create_task(odom())]
         await wait_for(lambda: any(isinstance(x, m.Pose) for x in msgs) and len(msgs) > 20, timeout=90)
         await drive_legs(node, TOUR)
         for task in tasks:

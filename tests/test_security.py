@@ -618,7 +618,7 @@ async def test_http_changes_need_the_owners_credentials(mesh: Mesh) -> None:
 def test_wrong_logins_cost_the_lab_router_nothing(mesh: Mesh) -> None:
     """100 wrong passwords and 100 unknown users against the lab router: none let in, the router
     keeps running at the same memory (bench/router_logins.py measures it next to right logins)."""
-    from lab_harness import cpu_seconds
+    from common import cpu_seconds
     from router_logins import attempt_logins, rss_kib
 
     assert mesh.lab.router is not None

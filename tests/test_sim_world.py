@@ -81,12 +81,6 @@ def test_arc_integration_is_exact_on_a_circle() -> None:
     assert math.hypot(pose[0], pose[1]) == pytest.approx(abs(radius * leftover), abs=1e-9)
 
 
-def test_theta_wraps() -> None:
-    assert wmod.wrap_angle(math.pi) == math.pi
-    assert wmod.wrap_angle(-math.pi) == math.pi
-    assert wmod.wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
-
-
 def test_stall_stops_wheel_and_raises_current() -> None:
     world = World(GEOM, seed=1)
     world.set_duty(0.7, 0.7)

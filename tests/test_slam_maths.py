@@ -11,16 +11,16 @@ import random
 import numpy as np
 import pytest
 
+from icefloe.angles import wrap_angle
 from icefloe.config import RobotConfig
+from icefloe.estimation.ekf import Noise, Outcome
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
-from icefloe.services.localizer.ekf import Noise, Outcome
-from icefloe.services.localizer.simrun import Camera, Result, Scenario
 from icefloe.services.mapper.mapping import LandmarkMapper
 from icefloe.services.mapper.tracker import Mapper
-from icefloe.services.odometry.model import wrap_angle
 from icefloe.services.slam.ekfslam import EkfSlam
 from icefloe.services.slam.tracker import Slam
+from icefloe.testing import TruthCamera
 from icefloe.worldmap import load_world
 
 TRUE = {mk.id: (mk.x, mk.y) for mk in load_world("lab").markers}
@@ -44,9 +44,8 @@ def tour(seconds: float = 120.0, dt: float = 0.02):
     return out
 
 
-def camera(seed: int) -> Camera:
-    return Camera(RobotConfig(), Scenario(sigma_range=0.02, sigma_range_rel=0.01, sigma_bearing=0.01),
-                  random.Random(seed))
+def camera(seed: int) -> TruthCamera:
+    return TruthCamera(RobotConfig(), random.Random(seed), sigma_range=0.02, sigma_range_rel=0.01, sigma_bearing=0.01)
 
 
 def test_the_map_maker_maps_the_lab_from_true_poses_within_5_cm() -> None:
@@ -54,7 +53,7 @@ def test_the_map_maker_maps_the_lab_from_true_poses_within_5_cm() -> None:
     mapper = LandmarkMapper(NOISE)
     for k, (_, x, y, th) in enumerate(tour(60)):
         if k % 4 == 0:
-            for lm in cam.frame((x, y, th), 0, Result()).landmarks:
+            for lm in cam.frame((x, y, th), 0).landmarks:
                 mapper.observe((x, y, th), lm.id, lm.range, lm.bearing)
     score = score_map(mapper.landmarks, TRUE)
     print(f"\nmap maker: {len(mapper.landmarks)} landmarks, RMSE {score.rmse * 100:.2f} cm "
@@ -77,7 +76,7 @@ def test_ekf_slam_maps_the_lab_and_tracks_the_robot_with_drifting_odometry() -> 
         # odometry: 2 % scale error and a slow heading drift, plus noise
         slam.predict(dx * 1.02, dy, dth * 1.01 + 0.002 * abs(dx) + odom_rng.gauss(0, 0.0005))
         if k % 4 == 0:
-            for lm in cam.frame(tuple(b), 0, Result()).landmarks:
+            for lm in cam.frame(tuple(b), 0).landmarks:
                 slam.observe(lm.id, lm.range, lm.bearing)
     score = score_map(slam.landmarks, TRUE)
     x, y, th = slam.pose

@@ -2,7 +2,7 @@
 simulator's truth with `icefloe score`'s maths; hostile sightings; a student's map maker in their place.
 
 As in test_localizer_sim.py, the test plays the camera: each ``sim/truth`` sample becomes the
-sightings the camera would make (`simrun.Camera`, seeded noise) on ``camera/landmarks``. About 40 s
+sightings the camera would make (`icefloe.testing.TruthCamera`, seeded noise) on ``camera/landmarks``. About 40 s
 alone per test; more on a loaded machine (bounded waits).
 """
 
@@ -20,12 +20,12 @@ import pytest
 from conftest import Proc, wait_for
 from test_localizer_sim import check_exits, drive_legs
 
+from icefloe.angles import wrap_angle
 from icefloe.launcher import program_environment
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
-from icefloe.services.localizer.simrun import Camera, Result, Scenario
-from icefloe.services.odometry.model import wrap_angle
+from icefloe.testing import TruthCamera, play_camera
 from icefloe.worldmap import load_world
 
 TRUE = {mk.id: (mk.x, mk.y) for mk in load_world("lab").markers}
@@ -37,22 +37,14 @@ async def tour(robot, node, services: tuple[str, ...], *, student: list | None =
     """Start the services, play the camera while driving TOUR; the latest message on each key."""
     procs = [robot.start(s) for s in ("sim", "hwbridge", "odometry", *services)]
     latest: dict[str, object] = {}
-    truth: list[m.Truth] = []
-    camera = Camera(robot.config, Scenario(), random.Random(11))
-    cam_pub = node.publisher(keys.LANDMARKS)
-
-    async def play() -> None:
-        async for t in node.subscribe(keys.TRUTH, latest=False):
-            truth.append(t)
-            latest["truth"] = t
-            if len(truth) % 3 == 0:
-                cam_pub.put(camera.frame((t.x, t.y, t.theta), t.stamp, Result()))
+    camera = TruthCamera(robot.config, random.Random(11))
 
     async def keep(topic: keys.Topic) -> None:
         async for msg in node.subscribe(topic):
             latest[topic.name] = msg
 
-    tasks = [asyncio.create_task(play())] + [asyncio.create_task(keep(t)) for t in
+    tasks = [asyncio.create_task(play_camera(node, camera, on_truth=lambda t, _: latest.update(truth=t)))]
+    tasks += [asyncio.create_task(keep(t)) for t in
                                              (keys.SLAM_POSE, keys.SLAM_MAP, keys.MAP_LANDMARKS)]
     wanted = {"slam": ("slam/pose", "slam/map"), "mapper": ("map/landmarks",)}
     need = [k for s in services for k in wanted.get(s, ())] + (student or [])

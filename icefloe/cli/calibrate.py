@@ -1,7 +1,7 @@
 """The `calibrate` verb: measure the robot camera's intrinsics from views of a printed board.
 
 The views are full-resolution snapshots (``camera/snapshot``); the board is found and the
-intrinsics computed by OpenCV (``services/camera/calibration.py``); the result is written as
+intrinsics computed by OpenCV (``icefloe/vision/calibration.py``); the result is written as
 the calibration file the camera service reads (``[camera] calibration``), and the robot
 config is pointed at it.
 """
@@ -27,8 +27,8 @@ from ..errors import ConfigError, IcefloeError
 from ..runtime import run_async
 from ..schemas import keys
 from ..schemas import messages as m
-from ..services.camera import calibration as cal
-from ..services.camera.geometry import Intrinsics, save_calibration
+from ..vision import calibration as cal
+from ..vision.geometry import Intrinsics, save_calibration
 from .common import add_bus_arguments, bus_config
 
 DESCRIPTION = """\

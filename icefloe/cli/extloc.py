@@ -26,8 +26,8 @@ def read_frame(config: config_mod.RobotConfig, image: str | None) -> np.ndarray:
     import cv2
     import numpy as np
 
-    from ..services.camera.detection import check_frame
     from ..services.extloc.sources import open_overhead
+    from ..vision.sources import check_frame
 
     ov = config.overhead
     if image:
@@ -49,8 +49,8 @@ def read_frame(config: config_mod.RobotConfig, image: str | None) -> np.ndarray:
 
 def calibrate(args: argparse.Namespace) -> int:
     from ..services.extloc import locate
-    from ..services.extloc.__main__ import overhead_intrinsics
-    from ..services.extloc.geometry import save_pose
+    from ..services.extloc.tracker import overhead_intrinsics
+    from ..vision.overhead import save_pose
     from ..worldmap import load_world
 
     config = config_mod.load(args.config)

@@ -14,6 +14,7 @@ import math
 import signal
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from ..errors import IcefloeError
 from ..runtime import RawSample, run_async
 from ..schemas import codec
 from ..score import inputs
-from ..score.maths import ALIGNMENTS, NotEnough, PathScore, Trajectory, score_map, score_path
+from ..score.maths import ALIGNMENTS, Alignment, NotEnough, PathScore, Trajectory, score_map, score_path
 from .common import add_bus_arguments, bus_config, check_robot, cli_node, key_names, resolve_key, warn
 from .record import warnings_to_stderr
 
@@ -39,6 +40,15 @@ def is_file(source: str) -> bool:
 
 def robot_of(args: argparse.Namespace, config: RobotConfig) -> str:
     return args.robot or config.name
+
+
+def one_key(args: argparse.Namespace, source: str, what: str) -> str:
+    """The full key ``source`` names on the robot of ``args``; `IcefloeError` for a wildcard (``what``
+    is read from one key)."""
+    key = resolve_key(source, robot_of(args, bus_config(args)))
+    if "*" in key:
+        raise IcefloeError(f"{source}: {what} is read from one key, not a wildcard")
+    return key
 
 
 # --------------------------------------------------------------------------- live keys
@@ -110,10 +120,7 @@ async def collect(args: argparse.Namespace, live: list[str]) -> dict[str, list[t
 def read_map(args: argparse.Namespace) -> tuple[inputs.Points, str]:
     if is_file(args.map):
         return inputs.read_map(args.map, args.key)
-    config = bus_config(args)
-    key = resolve_key(args.map, robot_of(args, config))
-    if "*" in key:
-        raise IcefloeError(f"{args.map}: one map is read from one key, not a wildcard")
+    key = one_key(args, args.map, "one map")
     raw = run_async(first_sample(args, key))
     return inputs.map_points(decoded(raw), key), f"{key} (one sample)"
 
@@ -133,8 +140,7 @@ def map_verb(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({
             "map": source, "truth": truth_source, "matched": len(score.errors),
-            "alignment": {"kind": a.kind, "rotation": a.rotation, "translation": a.translation, "scale": a.scale},
-            "rmse": score.rmse, "rmse_before": score.rmse_raw,
+            "alignment": alignment_json(a), "rmse": score.rmse, "rmse_before": score.rmse_raw,
             "markers": {str(i): {"error": e, "x": score.aligned[i][0], "y": score.aligned[i][1],
                                  "true_x": truth[i][0], "true_y": truth[i][1]} for i, e in score.errors.items()},
             "missed": score.missed, "spurious": score.spurious}))
@@ -156,7 +162,11 @@ def ids(values: list[int]) -> str:
     return ", ".join(map(str, values)) or "none"
 
 
-def describe_alignment(a: Any) -> str:
+def alignment_json(a: Alignment) -> dict[str, Any]:
+    return {"kind": a.kind, "rotation": a.rotation, "translation": a.translation, "scale": a.scale}
+
+
+def describe_alignment(a: Alignment) -> str:
     if a.kind == "none":
         return "none (as given)"
     scale = f", scale {a.scale:.4f}" if a.kind == "similarity" else ""
@@ -175,10 +185,7 @@ def read_paths(args: argparse.Namespace) -> tuple[tuple[Trajectory, str], tuple[
         if is_file(source):
             out[n] = inputs.read_trajectory(source, key)
         else:
-            full = resolve_key(source, args.robot or bus_config(args).name)
-            if "*" in full:
-                raise IcefloeError(f"{source}: a trajectory is read from one key, not a wildcard")
-            live[n] = full
+            live[n] = one_key(args, source, "a trajectory")
     if live:
         rows = run_async(collect(args, sorted(set(live.values()))))
         for n, full in live.items():
@@ -223,7 +230,7 @@ def path_json(score: PathScore, est_source: str, truth_source: str, n_est: int, 
 
     return {"trajectory": est_source, "truth": truth_source, "poses": n_est, "true_poses": n_truth,
             "pairs": score.pairs, "unmatched": score.unmatched,
-            "alignment": {"kind": a.kind, "rotation": a.rotation, "translation": a.translation, "scale": a.scale},
+            "alignment": alignment_json(a),
             "ate": {"rmse": score.ate_rmse, "mean": score.ate_mean, "max": score.ate_max,
                     "rmse_before": score.ate_rmse_raw, "heading_rmse_deg": math.degrees(score.heading_rmse)},
             "rpe": {"segment": score.segment, "segments": score.segments, "distance": score.distance,
@@ -261,30 +268,46 @@ def register(verbs: argparse._SubParsersAction) -> None:
                          "against the simulator's truth or an external localizer (docs/score.md).")
     score_verbs = p.add_subparsers(dest="score_verb", required=True, metavar="VERB", help="map, path")
 
-    q = score_verbs.add_parser(
-        "map", help="a landmark map against the world's true markers: RMSE after alignment, per marker",
-        description="A landmark map against the world's true markers: aligned (Umeyama), then the RMSE, each "
-        "marker's error, the markers missed and the spurious ones. MAP is a file (ECE4078's slam.txt, or "
-        "icefloe's landmark map as JSON or MessagePack, a world file), a recording (the last map in it), or a bus key "
-        "(one sample).")
-    q.add_argument("map", metavar="MAP", help="slam.txt, map.json, a world .toml, run.mcap, or a bus key (slam/map)")
-    q.add_argument("--world", required=True, metavar="WORLD",
-                   help="the true markers: a world (lab, or a .toml file) or ECE4078's true map (a JSON file)")
+    add_verb(score_verbs, "map", map_verb, map_options,
+             help_="a landmark map against the world's true markers: RMSE after alignment, per marker",
+             description="A landmark map against the world's true markers: aligned (Umeyama), then the RMSE, each "
+             "marker's error, the markers missed and the spurious ones. MAP is a file (ECE4078's slam.txt, or "
+             "icefloe's landmark map as JSON or MessagePack, a world file), a recording (the last map in it), or a "
+             "bus key (one sample).",
+             scored=("map", "MAP", "slam.txt, map.json, a world .toml, run.mcap, or a bus key (slam/map)"),
+             truth=("--world", "WORLD", "the true markers: a world (lab, or a .toml file) or ECE4078's true map "
+                    "(a JSON file)"))
+    add_verb(score_verbs, "path", path_verb, path_options,
+             help_="a trajectory against the truth: ATE after alignment, RPE per metre",
+             description="A pose trajectory against the truth: poses associated by time (nearest within --max-dt), "
+             "absolute trajectory error after alignment (RMSE, mean, max) and relative pose error per metre "
+             "travelled (translation %%, rotation deg/m). TRAJ and TRUTH are each a CSV file (columns t or stamp, "
+             "x, y, theta), a recording, or a bus key (collected for --duration).",
+             scored=("traj", "TRAJ", "traj.csv, run.mcap, or a bus key (loc/pose)"),
+             truth=("--truth", "TRUTH", "truth.csv, run.mcap, or a bus key (sim/truth, an external localizer's "
+                    "pose key)"))
+
+
+def add_verb(verbs: argparse._SubParsersAction, name: str, run: Callable[[argparse.Namespace], int],
+             options: Callable[[argparse.ArgumentParser], None], *, help_: str, description: str,
+             scored: tuple[str, str, str], truth: tuple[str, str, str]) -> None:
+    """A score verb: what it scores (a positional: name, metavar, help), the truth (a required
+    option: flag, metavar, help), the verb's own ``options``, then the options both share."""
+    q = verbs.add_parser(name, help=help_, description=description)
+    q.add_argument(scored[0], metavar=scored[1], help=scored[2])
+    q.add_argument(truth[0], required=True, metavar=truth[1], help=truth[2])
+    options(q)
+    add_common(q)
+    q.set_defaults(run=run)
+
+
+def map_options(q: argparse.ArgumentParser) -> None:
     add_key_option(q, "--key", "in a recording: the map's key (default: the one key with maps)")
     q.add_argument("--timeout", type=positive, default=10.0, metavar="S",
                    help="a bus key: wait this long for a sample (default 10)")
-    add_common(q)
-    q.set_defaults(run=map_verb)
 
-    q = score_verbs.add_parser(
-        "path", help="a trajectory against the truth: ATE after alignment, RPE per metre",
-        description="A pose trajectory against the truth: poses associated by time (nearest within --max-dt), "
-        "absolute trajectory error after alignment (RMSE, mean, max) and relative pose error per metre "
-        "travelled (translation %%, rotation deg/m). TRAJ and TRUTH are each a CSV file (columns t or stamp, "
-        "x, y, theta), a recording, or a bus key (collected for --duration).")
-    q.add_argument("traj", metavar="TRAJ", help="traj.csv, run.mcap, or a bus key (loc/pose)")
-    q.add_argument("--truth", required=True, metavar="TRUTH",
-                   help="truth.csv, run.mcap, or a bus key (sim/truth, an external localizer's pose key)")
+
+def path_options(q: argparse.ArgumentParser) -> None:
     add_key_option(q, "--key", "in a recording TRAJ: the poses' key (default loc/pose)", "loc/pose")
     add_key_option(q, "--truth-key", "in a recording TRUTH: the true poses' key (default sim/truth)", "sim/truth")
     q.add_argument("--max-dt", type=positive, default=0.02, metavar="S",
@@ -293,5 +316,3 @@ def register(verbs: argparse._SubParsersAction) -> None:
                    help="RPE over segments of M metres of the true path (default 1)")
     q.add_argument("--duration", type=positive, default=30.0, metavar="S",
                    help="bus keys: collect for S seconds (default 30; Ctrl-C scores what came so far)")
-    add_common(q)
-    q.set_defaults(run=path_verb)

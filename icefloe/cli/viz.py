@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import argparse
 
-from ..services.viz.__main__ import __doc__ as VIZ_DOC
-from ..services.viz.__main__ import add_service_arguments
+from ..services.viz.command import __doc__ as VIZ_DOC
+from ..services.viz.command import add_service_arguments
 
 
 def viz(args: argparse.Namespace) -> int:
     if args.files:
-        from ..services.viz.__main__ import show_recording
+        from ..services.viz.command import show_recording
 
         return show_recording(args)
-    from ..services.viz.__main__ import start
+    from ..services.viz.command import start
 
     start(args)
     return 0

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..angles import wrap_angles
+
 ALIGNMENTS = ("rigid", "similarity", "none")
 MIN_POINTS = {"rigid": 2, "similarity": 3, "none": 1}
 """Matched points an alignment needs to leave something to score: one point fixes a rigid
@@ -86,11 +88,6 @@ def align(src: np.ndarray, dst: np.ndarray, kind: str = "rigid") -> Alignment:
 def rmse(errors: np.ndarray) -> float:
     """Root mean square of distances (the ECE4078 RMSE: sqrt of the mean squared distance)."""
     return float(np.sqrt(np.mean(np.asarray(errors, float) ** 2))) if len(errors) else 0.0
-
-
-def wrap(angle: np.ndarray | float) -> np.ndarray | float:
-    """Angles in [-pi, pi)."""
-    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
 
 # --------------------------------------------------------------------------- maps
@@ -214,7 +211,7 @@ def relative(x: np.ndarray, y: np.ndarray, th: np.ndarray, i: np.ndarray, j: np.
     """The motion from pose i to pose j, in pose i's frame: (dx, dy, dtheta)."""
     c, s = np.cos(th[i]), np.sin(th[i])
     gx, gy = x[j] - x[i], y[j] - y[i]
-    return c * gx + s * gy, -s * gx + c * gy, wrap(th[j] - th[i])
+    return c * gx + s * gy, -s * gx + c * gy, wrap_angles(th[j] - th[i])
 
 
 def score_path(est: Trajectory, truth: Trajectory, *, max_dt: float = 0.02, kind: str = "rigid",
@@ -229,7 +226,7 @@ def score_path(est: Trajectory, truth: Trajectory, *, max_dt: float = 0.02, kind
     e_xy, t_xy = np.column_stack([ex, ey]), np.column_stack([tx, ty])
     alignment = align(e_xy, t_xy, kind)
     errors = np.linalg.norm(alignment.apply(e_xy) - t_xy, axis=1)
-    heading = wrap(eth + alignment.rotation - tth)
+    heading = wrap_angles(eth + alignment.rotation - tth)
 
     # RPE: from each pose to the first pose at least `segment` further along the true path.
     along = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(tx), np.diff(ty)))])
@@ -245,7 +242,7 @@ def score_path(est: Trajectory, truth: Trajectory, *, max_dt: float = 0.02, kind
         c, s = np.cos(tdth), np.sin(tdth)
         gx, gy = edx - tdx, edy - tdy
         err_t = np.hypot(c * gx + s * gy, -s * gx + c * gy)
-        err_r = np.abs(wrap(edth - tdth))
+        err_r = np.abs(wrap_angles(edth - tdth))
         trans_pct = float(np.mean(err_t / length) * 100.0)
         rot_deg_m = float(np.mean(np.degrees(err_r) / length))
     return PathScore(len(i), len(est) - len(i), alignment, rmse(errors), float(errors.mean()), float(errors.max()),

@@ -1,7 +1,7 @@
 """camera: frames in, ArUco landmarks and JPEG images out.
 
-* A capture thread reads frames from the source of ``camera.source`` (see
-  sources.py) into a one-frame slot: the **latest frame wins**. When detection
+* A capture thread (`icefloe.vision.capture`) reads frames from the source of ``camera.source``
+  (sources.py) into a one-frame slot: the **latest frame wins**. When detection
   falls behind, the frames it never saw are dropped and counted, never queued.
 * Detection runs on every frame it takes, whatever the image rate, and publishes
   ``camera/landmarks`` stamped with the frame's capture time.
@@ -21,96 +21,22 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import threading
 import time
 
-import numpy as np
-
 from icefloe.config import RobotConfig
-from icefloe.errors import ConfigError
-from icefloe.runtime import Node, Publisher, run
+from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.worldmap import load_world
+from icefloe.vision.capture import Capture
+from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.sources import Frame, SourceError, picamera2_class
 
-from .detection import BadFrame, Detector, check_frame
+from .detection import make_detector
 from .frames import Frames, camera_info
-from .geometry import Intrinsics, Mount
-from .sources import SimSource, Source, SourceError, open_source, picamera2_class
+from .sources import SimSource, open_camera
 
-RETRY_S = 2.0
 SNAPSHOT_QUALITY = 90
 """JPEG quality of ``camera/snapshot`` (calibration images: sharper than the stream's)."""
-REPORT_S = 10.0
-
-
-class LatestFrame:
-    """A one-frame slot between the capture thread and detection; counts what was overwritten."""
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._frame: tuple[int, np.ndarray] | None = None
-        self.latest: tuple[int, np.ndarray] | None = None
-        """The newest frame, kept for snapshots."""
-        self.captured = 0
-        self.dropped = 0
-
-    def put(self, frame: tuple[int, np.ndarray]) -> None:
-        with self._cond:
-            if self._frame is not None:
-                self.dropped += 1
-            self._frame = self.latest = frame
-            self.captured += 1
-            self._cond.notify()
-
-    def take(self, timeout: float) -> tuple[int, np.ndarray] | None:
-        with self._cond:
-            if self._frame is None:
-                self._cond.wait(timeout)
-            frame, self._frame = self._frame, None
-            return frame
-
-
-def capture(config: RobotConfig, node: Node, slot: LatestFrame, stop: threading.Event,
-            sources: list[Source], stream: Publisher[m.Image], small: Frames) -> None:
-    """The capture thread: open the source, read frames into ``slot``, reopen after failures;
-    while something subscribes to ``stream`` (``camera/frames``), send it each frame at once."""
-    cam = config.camera
-    source: Source | None = None
-    while not stop.is_set():
-        try:
-            if source is None:
-                source = open_source(config)
-                sources[:] = [source]
-                node.log.info("camera %r open", cam.source)
-            stamp, image = source.read()
-            frame = (stamp, check_frame(image, cam.width, cam.height))
-            slot.put(frame)
-            if stream.matched:  # someone watches: ~2 ms at 320x240, no cost otherwise
-                stream.put(small.of(frame))
-        except BadFrame as exc:
-            node.limited.warning("bad frame", "camera %r: bad frame skipped (%s)", cam.source, exc)
-        except Exception as exc:  # a camera that fails must not take the service with it
-            node.log.warning("camera %r failed: %s; retrying in %.0f s", cam.source, exc, RETRY_S)
-            if source is not None:
-                with contextlib.suppress(Exception):
-                    source.close()
-            source = None
-            sources.clear()
-            stop.wait(RETRY_S)
-    if source is not None:
-        source.close()
-
-
-def make_detector(config: RobotConfig) -> Detector:
-    cam = config.camera
-    try:
-        world = load_world(config.localizer.world)
-        sizes = world.sizes()  # markers, and the faces of marker blocks
-    except ConfigError:
-        sizes = {}  # no map: every marker is taken to have camera.marker_size
-    return Detector(cam.dictionary, Intrinsics.from_config(cam), Mount.from_config(cam), sizes, cam.marker_size)
 
 
 async def main(config: RobotConfig) -> None:
@@ -120,69 +46,59 @@ async def main(config: RobotConfig) -> None:
     detector = make_detector(config)  # ConfigError for a bad calibration file: run() says so, exits
     info = camera_info(cam, Intrinsics.from_config(cam))
     async with Node("camera", config) as node:
-        slot, stop, sources = LatestFrame(), threading.Event(), []
         small = Frames(cam)
         full = Frames(cam, full=True, quality=SNAPSHOT_QUALITY)
         landmarks = node.publisher(keys.LANDMARKS)
         images = node.publisher(keys.IMAGE)
         stream = node.publisher(keys.FRAMES)
 
-        async def snapshot(_request: m.Stop) -> m.Image:
-            frame = slot.latest
-            if frame is None:
-                raise SourceError(f"camera {cam.source!r} has delivered no frame yet")
-            return await asyncio.to_thread(full.of, frame)
+        def send_while_watched(frame: Frame) -> None:  # the capture thread
+            if stream.matched:  # someone watches: ~2 ms at 320x240, no cost otherwise
+                stream.put(small.of(frame))
 
-        node.queryable(keys.SNAPSHOT, snapshot)
+        capture = Capture("camera", cam.source, lambda: open_camera(config), cam.width, cam.height, log=node.log,
+                          limited=node.limited, thread_name="camera-capture", on_frame=send_while_watched)
+
+        def newest() -> Frame:
+            if capture.slot.latest is None:
+                raise SourceError(f"camera {cam.source!r} has delivered no frame yet")
+            return capture.slot.latest
+
+        async def snapshot(_request: m.Stop) -> m.Image:
+            return await asyncio.to_thread(full.of, newest())
 
         async def latest_small(_request: m.Stop) -> m.Image:
-            frame = slot.latest
-            if frame is None:
-                raise SourceError(f"camera {cam.source!r} has delivered no frame yet")
-            return await asyncio.to_thread(small.of, frame)
+            return await asyncio.to_thread(small.of, newest())
 
         async def intrinsics(_request: m.Stop) -> m.CameraInfo:
             return info
 
+        node.queryable(keys.SNAPSHOT, snapshot)
         node.queryable(keys.FRAME, latest_small)
         node.queryable(keys.CAMERA_INFO, intrinsics)
 
         async def feed_truth() -> None:  # only for the simulated camera
             async for truth in node.subscribe(keys.TRUTH):
-                for source in sources:
-                    if isinstance(source, SimSource):
-                        source.set_truth(truth)
+                if isinstance(source := capture.source, SimSource):
+                    source.set_truth(truth)
 
-        thread = threading.Thread(target=capture, args=(config, node, slot, stop, sources, stream, small),
-                                  name="camera-capture", daemon=True)
-        thread.start()
+        capture.start()
         truth_task = asyncio.create_task(feed_truth()) if cam.source == "sim" else None
         image_period = 1.0 / cam.image_rate_hz if cam.image_rate_hz > 0 else float("inf")
-        next_image = next_report = time.monotonic()
-        detected = 0
+        next_image = time.monotonic()
         try:
-            while True:
-                frame = await asyncio.to_thread(slot.take, 0.5)
+            async for frame in capture.frames("camera: %d frames captured, %d detected, %d dropped (detection behind)"):
                 now = time.monotonic()
-                if now >= next_report:
-                    if slot.dropped:
-                        node.log.info("camera: %d frames captured, %d detected, %d dropped (detection behind)",
-                                      slot.captured, detected, slot.dropped)
-                    next_report = now + REPORT_S
-                if frame is None:
-                    continue
                 stamp, image = frame
                 found = await asyncio.to_thread(detector.detect, image)
-                detected += 1
                 landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
                 if now >= next_image:
                     next_image = now + image_period
                     images.put(await asyncio.to_thread(small.of, frame))
         finally:
-            stop.set()
             if truth_task is not None:
                 truth_task.cancel()
-            await asyncio.to_thread(thread.join, RETRY_S + 1.0)
+            await capture.close()
 
 
 if __name__ == "__main__":

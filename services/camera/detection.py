@@ -13,33 +13,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from icefloe.errors import ConfigError, IcefloeError
+from icefloe.config import RobotConfig
+from icefloe.errors import ConfigError
 from icefloe.schemas import messages as m
-
-from .geometry import Intrinsics, Mount, range_bearing
-
-
-class BadFrame(IcefloeError):
-    """A frame that cannot be used: empty, wrong size, wrong type."""
-
-
-def check_frame(image: object, width: int, height: int) -> np.ndarray:
-    """The frame, if it is a ``height`` x ``width`` BGR (or grey) uint8 image; else `BadFrame`."""
-    if not isinstance(image, np.ndarray) or image.size == 0:
-        raise BadFrame("empty frame")
-    if image.dtype != np.uint8:
-        raise BadFrame(f"frame of {image.dtype}, expected uint8")
-    if image.shape[:2] != (height, width) or image.ndim not in (2, 3):
-        raise BadFrame(f"frame of shape {image.shape}, expected {height}x{width} (camera.width, camera.height)")
-    return image
-
-
-def aruco_dictionary(name: str) -> int:
-    """OpenCV's id of a predefined ArUco dictionary (``camera.dictionary``, e.g. "DICT_4X4_50")."""
-    value = getattr(cv2.aruco, name, None) if name.startswith("DICT_") else None
-    if not isinstance(value, int):
-        raise ConfigError(f"camera.dictionary: {name!r} is not an OpenCV ArUco dictionary (e.g. DICT_4X4_50)")
-    return value
+from icefloe.vision.aruco import aruco_dictionary
+from icefloe.vision.geometry import Intrinsics, Mount, range_bearing
+from icefloe.worldmap import load_world
 
 
 class Detector:
@@ -85,3 +64,13 @@ class Detector:
                                     position=[float(v) for v in position],
                                     rotation=[float(v) for v in rvec.ravel()]))
         return found
+
+
+def make_detector(config: RobotConfig) -> Detector:
+    cam = config.camera
+    try:
+        world = load_world(config.localizer.world)
+        sizes = world.sizes()  # markers, and the faces of marker blocks
+    except ConfigError:
+        sizes = {}  # no map: every marker is taken to have camera.marker_size
+    return Detector(cam.dictionary, Intrinsics.from_config(cam), Mount.from_config(cam), sizes, cam.marker_size)

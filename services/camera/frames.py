@@ -19,12 +19,8 @@ import numpy as np
 
 from icefloe.config import Camera
 from icefloe.schemas import messages as m
-
-from .detection import BadFrame
-from .geometry import Intrinsics
-
-Frame = tuple[int, np.ndarray]
-"""(capture stamp, ns since the epoch; the BGR frame at the capture size)."""
+from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.sources import BadFrame, Frame
 
 
 def jpeg(image: np.ndarray, quality: int) -> bytes:

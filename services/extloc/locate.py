@@ -22,11 +22,10 @@ import cv2
 import numpy as np
 
 from icefloe.errors import ConfigError, IcefloeError
-from icefloe.services.camera.detection import aruco_dictionary
-from icefloe.services.camera.geometry import Intrinsics
+from icefloe.vision.aruco import aruco_dictionary
+from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.overhead import CameraPose, fit_square, flat_square_corners, project, to_plane
 from icefloe.worldmap import WorldMap
-
-from .geometry import CameraPose, fit_square, flat_square_corners, project, to_plane
 
 MIN_FLOOR_MARKERS = 2
 """Floor markers a calibration needs in view (each gives four corners)."""

@@ -7,7 +7,7 @@ The old localiser (qcr/PenguinPi-robot, ``software/python/localiser/localiser.py
 
 ``pibot_client.PiBot(..., localiser_ip, localiser_port)`` calls them as ``getLocalizerPose(group)``
 and ``getLocalizerImage()``. The old localiser tracked one robot and ignored ``group``; here group
-N is a robot (`icefloe.services.extloc.__main__.groups`: ``extloc.group`` in the robot's config,
+N is a robot (`tracker.groups`: ``extloc.group`` in the robot's config,
 else its place in ``overhead.robots``). Its pose is the last one published, if the robot was seen
 in the last `FRESH_S`; else 404 naming the robot (no stale pose). The picture is a JPEG of the
 newest frame, encoded at most ``overhead.image_rate_hz`` times a second however often it is asked.

@@ -1,21 +1,19 @@
-"""Where overhead pictures come from, chosen by ``overhead.source``, as the robot camera's
-sources (`icefloe.services.camera.sources`, whose V4L2/USB, picamera2 and file sources these
-are): ``"sim"`` renders the lab's robots at their ``sim/truth`` (`SimOverheadSource`)."""
+"""Where overhead pictures come from, chosen by ``overhead.source``: the sources of
+`icefloe.vision.sources` (V4L2/USB, picamera2, files), and ``"sim"``, which renders the lab's
+robots at their ``sim/truth`` (`SimOverheadSource`)."""
 
 from __future__ import annotations
 
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
 from icefloe.config import Overhead, RobotConfig
 from icefloe.schemas import messages as m
-from icefloe.services.camera.geometry import Intrinsics
-from icefloe.services.camera.sources import FolderSource, OpenCvSource, Paced, Picamera2Source, Source, SourceError
-
-from .geometry import CameraPose
+from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.overhead import CameraPose
+from icefloe.vision.sources import Paced, Source, open_source
 
 
 def sim_camera_pose(overhead: Overhead) -> CameraPose:
@@ -65,17 +63,5 @@ class SimOverheadSource:
 
 def open_overhead(overhead: Overhead, robots: list[RobotConfig]) -> Source:
     """The source named by ``overhead.source``; `SourceError` if it cannot be opened now."""
-    spec = overhead.source
-    if spec == "sim":
-        return SimOverheadSource(overhead, robots)
-    if spec == "picamera2":
-        return Picamera2Source(overhead.width, overhead.height)
-    if spec.startswith("v4l2:"):
-        target = spec.removeprefix("v4l2:")
-        return OpenCvSource(int(target) if target.isdigit() else target, overhead.width, overhead.height)
-    path = Path(spec).expanduser()
-    if path.is_file():
-        return OpenCvSource(str(path), overhead.width, overhead.height, loop=True)
-    if not path.is_dir():
-        raise SourceError(f"overhead.source: {spec!r} is no camera, image folder or video file")
-    return FolderSource(path, overhead.fps)
+    return open_source(overhead.source, overhead.width, overhead.height, overhead.fps, setting="overhead.source",
+                       sim=lambda: SimOverheadSource(overhead, robots))

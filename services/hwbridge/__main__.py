@@ -33,13 +33,13 @@ import zenoh
 
 from icefloe.config import RobotConfig
 from icefloe.errors import EXIT_CONFIG, BadPayload, BoardError, NotConfirmed
+from icefloe.ordering import Origin
 from icefloe.runtime import MSGPACK, Node, decode_query, run
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
 from .board import make_board
 from .bridge import Bridge, LoopReport
-from .ordering import Origin
 from .rt import EXIT_MISMATCH
 from .shm import IO_SLOTS, Shared, block_name
 

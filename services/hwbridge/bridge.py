@@ -28,6 +28,7 @@ import time
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload, NotConfirmed
 from icefloe.logs import LimitedLog
+from icefloe.ordering import CommandOrder, Origin
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
@@ -38,7 +39,6 @@ from .control import (
     percentiles,
     twist_to_wheels,
 )
-from .ordering import CommandOrder, Origin
 from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, STATE_FIELDS, Shared
 
 MOTION_STEP_S = 0.02

@@ -8,22 +8,10 @@ from __future__ import annotations
 
 import asyncio
 
-from icefloe.config import RobotConfig
+from icefloe.config import RobotConfig, robot_info
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-
-
-def robot_info(config: RobotConfig) -> m.RobotInfo:
-    return m.RobotInfo(
-        name=config.name,
-        board=config.board.kind,
-        backend=config.board.backend,
-        wheel_diameter=config.geometry.wheel_diameter,
-        track=config.geometry.track,
-        ticks_per_rev=config.geometry.ticks_per_rev,
-        max_wheel_speed=config.hwbridge.max_wheel_speed,
-    )
 
 
 async def main(config: RobotConfig) -> None:

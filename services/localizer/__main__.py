@@ -20,10 +20,9 @@ from __future__ import annotations
 import asyncio
 
 from icefloe.config import RobotConfig
+from icefloe.estimation.localizer import Localizer
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
-
-from .tracker import Localizer
 
 
 async def main(config: RobotConfig) -> None:

@@ -12,7 +12,7 @@ First sighting, at range r and bearing b from the pose (x, y, th)::
     Gx = dm/d(x, y, th) = [[1, 0, -r sin a], [0, 1, r cos a]]
     S  = Gz R Gz^T + Gx Q Gx^T          R: the sighting's noise, Q: the pose's
 
-Every later sighting corrects it (the localizer's update, services/localizer/ekf.py,
+Every later sighting corrects it (the localizer's update, icefloe/estimation/ekf.py,
 with the landmark in the state instead of the robot)::
 
     ddx = mx - x,  ddy = my - y,  q = ddx^2 + ddy^2
@@ -34,8 +34,8 @@ import math
 
 import numpy as np
 
-from ..localizer.ekf import Noise, Outcome, Result
-from ..odometry.model import wrap_angle
+from icefloe.angles import wrap_angle
+from icefloe.estimation.ekf import Noise, Outcome, Result
 
 
 class LandmarkMapper:

@@ -6,13 +6,13 @@ from __future__ import annotations
 import logging
 from collections import deque
 
+from icefloe.angles import wrap_angle
 from icefloe.config import RobotConfig
+from icefloe.estimation.ekf import Noise, Outcome
+from icefloe.estimation.landmarks import landmark_map, plausible
 from icefloe.logs import LimitedLog
 from icefloe.schemas import messages as m
 
-from ..localizer.ekf import Noise, Outcome
-from ..odometry.model import wrap_angle
-from ..slam.tracker import landmark_map, plausible
 from .mapping import LandmarkMapper
 
 HISTORY_NS = 1_000_000_000

@@ -19,17 +19,10 @@ from icefloe.runtime import Batches, Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
-from .battery import BadReading, BatteryMonitor
+from .battery import READ_BACKLOG, READ_PERIOD_S, BadReading, BatteryMonitor
 from .gpio import Lines, open_lines
 from .lines import HoldDetector
 from .shutdown import Shutdown
-
-READ_PERIOD_S = 0.5
-"""The battery readings are taken together this often, s: they come at 10 Hz and every one
-counts (persistence), but a battery changes over minutes; waking once per reading cost the
-service more than everything else it does at rest (bench/stack_cpu.py)."""
-READ_BACKLOG = 64
-"""Readings Zenoh keeps for the next batch (a flood of ``hw/battery`` loses its oldest)."""
 
 
 def battery_readings(node: Node, power: Power) -> Batches[m.BatteryReading]:

@@ -15,6 +15,12 @@ MIN_VOLTS = 0.0
 MAX_VOLTS = 30.0
 """Plausible range of a raw reading, V. The robot's pack is 2S LiPo (~6-8.4 V);
 anything outside this range is a wiring or firmware fault, not a battery level."""
+READ_PERIOD_S = 0.5
+"""The service takes the battery readings together this often, s: they come at 10 Hz and every
+one counts (persistence), but a battery changes over minutes; waking once per reading cost the
+service more than everything else it does at rest (bench/stack_cpu.py)."""
+READ_BACKLOG = 64
+"""Readings Zenoh keeps for the service's next batch (a flood of ``hw/battery`` loses its oldest)."""
 
 
 class BadReading(ValueError):

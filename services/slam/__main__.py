@@ -2,7 +2,7 @@
 
 * The maths is in `ekfslam.py` (one small module: read it first); the bookkeeping
   between messages (odometry increments, late camera frames, bad input) is the
-  localizer's (`tracker.Slam`).
+  localizer's (`icefloe/estimation/localizer.py`; `tracker.Slam` puts `EkfSlam` in it).
 * Frame: SLAM's own, the robot's pose when the service started (x, y, theta = 0);
   `icefloe score map` aligns its map to the world's.
 * Publishes ``slam/pose`` (with the pose's 3 x 3 covariance) after every landmark

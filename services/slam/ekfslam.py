@@ -5,7 +5,7 @@ State: the robot's pose and every landmark seen so far, in SLAM's own frame
 
     mu = (x, y, theta, m1x, m1y, m2x, m2y, ...)        P: (3 + 2n) x (3 + 2n)
 
-This is the localizer's filter (services/localizer/ekf.py) with the map moved
+This is the localizer's filter (icefloe/estimation/ekf.py) with the map moved
 into the state. The same three steps, each touching a part of P:
 
 Prediction — an odometry increment u = (dx, dy, dth) in the robot's frame
@@ -46,11 +46,11 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from ..localizer.ekf import Noise, Outcome, Result, gated_update
-from ..odometry.model import wrap_angle
+from icefloe.angles import wrap_angle
+from icefloe.estimation.ekf import GatedFilter, Noise, Outcome, Result
 
 
-class EkfSlam:
+class EkfSlam(GatedFilter):
     """`predict` with odometry increments, `observe` landmarks; `pose`, `landmarks`, `covariance`."""
 
     def __init__(self, noise: Noise | None = None, *, gate_chi2: float = 11.83, max_landmarks: int = 100,
@@ -133,14 +133,7 @@ class EkfSlam:
         H[:, :3] = [[-ddx / r_hat, -ddy / r_hat, 0.0], [ddy / q, -ddx / q, -1.0]]
         H[:, k:k + 2] = [[ddx / r_hat, ddy / r_hat], [-ddy / q, ddx / q]]
         nu = np.array([rng - r_hat, wrap_angle(bearing - (math.atan2(ddy, ddx) - th))])
-        R = self._noise(rng)
-        mu, P, d2 = gated_update(self.mu, self.P, H, nu, R, self.gate_chi2)
-        if mu is None:
-            self.outliers += 1
-            return Result(Outcome.OUTLIER, landmark_id, d2)
-        self.mu, self.P = mu, P
-        self.accepted += 1
-        return Result(Outcome.ACCEPTED, landmark_id, d2)
+        return self.correct(landmark_id, H, nu, self._noise(rng))
 
     def _add(self, landmark_id: int, rng: float, bearing: float) -> Result:
         if len(self.index) >= self.max_landmarks:

@@ -7,14 +7,13 @@ benchmark feed it the same messages built in-process.
 from __future__ import annotations
 
 import logging
-import math
 
 from icefloe.config import RobotConfig
-from icefloe.logs import LimitedLog
+from icefloe.estimation.ekf import Noise
+from icefloe.estimation.landmarks import landmark_map, plausible
+from icefloe.estimation.localizer import Localizer
 from icefloe.schemas import messages as m
 
-from ..localizer.ekf import Noise
-from ..localizer.tracker import Localizer
 from .ekfslam import EkfSlam
 
 
@@ -43,26 +42,3 @@ class Slam(Localizer):
 
     def landmark_map(self) -> m.LandmarkMap:
         return landmark_map(self.ekf, self.stamp)
-
-
-MAX_RANGE = 20.0
-"""Farthest plausible sighting, m: the camera reads a 7 cm marker to 3 m or so."""
-
-
-def plausible(frame: m.Landmarks, warn: LimitedLog) -> list[m.Landmark]:
-    """The frame's sightings a camera could have made (0 < range < MAX_RANGE, |bearing| <= pi); one
-    rate-limited line for the others. (The schema has already refused NaN and infinity.)"""
-    good = [lm for lm in frame.landmarks if 0.0 < lm.range < MAX_RANGE and abs(lm.bearing) <= math.pi]
-    if len(good) < len(frame.landmarks):
-        bad = next(lm for lm in frame.landmarks if lm not in good)
-        warn.warning("camera/landmarks implausible",
-                     f"camera/landmarks: landmark {bad.id} at range {bad.range} m, bearing {bad.bearing} rad "
-                     f"is not a sighting (range must be in (0, {MAX_RANGE}) m, bearing in [-pi, pi]): not used")
-    return good
-
-
-def landmark_map(filt, stamp: int) -> m.LandmarkMap:
-    """The map of a filter with ``landmarks`` and ``covariance(id)`` (`EkfSlam`, `LandmarkMapper`)."""
-    return m.LandmarkMap(stamp=stamp, landmarks=[
-        m.MapLandmark(id=i, x=x, y=y, covariance=[float(v) for v in filt.covariance(i).ravel()])
-        for i, (x, y) in sorted(filt.landmarks.items())])

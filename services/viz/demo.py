@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from icefloe.angles import wrap_angle
 from icefloe.config import RobotConfig
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
@@ -54,7 +55,7 @@ class DemoRobot:
 
     def truth(self, t: float) -> tuple[float, float, float]:
         angle = SPEED * t / RADIUS - math.pi / 2  # start at (0, -1) heading +x, driving anticlockwise
-        theta = math.atan2(math.sin(angle + math.pi / 2), math.cos(angle + math.pi / 2))
+        theta = wrap_angle(angle + math.pi / 2)
         return RADIUS * math.cos(angle), RADIUS * math.sin(angle), theta
 
     def seen(self, t: float) -> list[m.Landmark]:

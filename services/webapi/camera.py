@@ -33,7 +33,7 @@ import zenoh
 from aiohttp import web
 
 from icefloe.errors import BadPayload, NotReachable
-from icefloe.runtime import Node
+from icefloe.runtime import LoopWakeup, Node
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
@@ -92,7 +92,8 @@ class Feed:
         self._subscriber: zenoh.Subscriber | None = None
         self._lock = threading.Lock()
         self._pending: tuple[bytes, str] | None = None
-        self._wake_pending = False
+        self._wakeup = LoopWakeup(self._loop, self._take)
+        self._closed = False
         self._linger: asyncio.TimerHandle | None = None
         self._linger_until = 0.0
 
@@ -127,7 +128,7 @@ class Feed:
     def _release(self) -> None:
         self.watchers -= 1
         if self.watchers == 0:
-            self.close()
+            self._unfollow()
 
     def fresh(self, within: float) -> m.Image | None:
         """The newest frame if it came in the last ``within`` s (the camera still sends), else None."""
@@ -135,30 +136,36 @@ class Feed:
             return self.image
         return None
 
+    def _unfollow(self) -> None:
+        """Nobody watches: undeclare the subscriber (the camera stops sending) and hold no frame."""
+        subscriber, self._subscriber = self._subscriber, None
+        if subscriber is not None:
+            with contextlib.suppress(Exception):  # the session is closing
+                subscriber.undeclare()
+        self.part = self.image = None
+
     def close(self) -> None:
         if self._linger is not None:
             self._linger.cancel()
             self._linger = None
             self.watchers -= 1
-        subscriber, self._subscriber = self._subscriber, None
-        if subscriber is not None:
-            with contextlib.suppress(Exception):  # the session is closing
-                subscriber.undeclare()
-        self.part = self.image = None  # nobody watches: hold no frame
+        self._unfollow()
+        with self._lock:  # a Zenoh thread may still be delivering a frame: it finds no wake-up to signal
+            self._closed = True
+            self._wakeup.close()
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Zenoh's thread: keep only the newest payload and wake the loop once. Never block.
+        # Zenoh's thread: keep only the newest payload and wake the loop (once for all the frames
+        # that come before it looks: `LoopWakeup`). Never block.
         with self._lock:
-            self._pending = (sample.payload.to_bytes(), str(sample.encoding))
-            if self._wake_pending:
+            if self._closed:
                 return
-            self._wake_pending = True
-        with contextlib.suppress(RuntimeError):  # the loop is closing
-            self._loop.call_soon_threadsafe(self._take)
+            self._pending = (sample.payload.to_bytes(), str(sample.encoding))
+            self._wakeup.signal()
 
     def _take(self) -> None:
         with self._lock:
-            pending, self._pending, self._wake_pending = self._pending, None, False
+            pending, self._pending = self._pending, None
         if pending is None or self._subscriber is None:
             return
         try:

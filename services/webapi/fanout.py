@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import zenoh
 
 from icefloe.logs import LimitedLog, printable
+from icefloe.runtime import LoopWakeup
 from icefloe.schemas import keys
 
 log = logging.getLogger("icefloe.webapi")
@@ -167,7 +168,8 @@ class Channel:
         self._backlog: deque[Raw] = deque(maxlen=CHANNEL_BACKLOG)
         self._lock = threading.Lock()
         self._wake = asyncio.Event()
-        self._wake_pending = False
+        self._wakeup = LoopWakeup(self._loop, self._wake.set)
+        self._closed = False
         self._keep_latest = "*" not in key_expr
         self._declared: list[object] = []
         if samples:
@@ -181,27 +183,25 @@ class Channel:
         self._pump = asyncio.create_task(self._run())
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Zenoh's thread: copy, append to a bounded deque, wake the loop once. Never block.
+        # Zenoh's thread: copy, append to a bounded deque, wake the loop (once for all the samples
+        # that come before it looks: `LoopWakeup`). Never block.
         raw = Raw(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), stamp_text(sample.timestamp),
                   "DELETE" if sample.kind == zenoh.SampleKind.DELETE else "PUT")
-        with self._lock:
+        with self._lock:  # also keeps `close` from closing the wake-up while it is signalled
+            if self._closed:
+                return
             if len(self._backlog) == self._backlog.maxlen:
                 self.skipped += 1
             self._backlog.append(raw)
-            if self._wake_pending:
-                return
-            self._wake_pending = True
-        with contextlib.suppress(RuntimeError):  # the loop is closing
-            self._loop.call_soon_threadsafe(self._wake.set)
+            self._wakeup.signal()
 
     async def _run(self) -> None:
         while True:
             await self._wake.wait()
+            self._wake.clear()  # before taking the backlog: a sample after this wakes us again
             with self._lock:
                 raws = list(self._backlog)
                 self._backlog.clear()
-                self._wake.clear()
-                self._wake_pending = False
             for raw in raws:
                 rendered = self._render(raw)
                 if rendered is None:
@@ -236,6 +236,9 @@ class Channel:
             with contextlib.suppress(Exception):
                 item.undeclare()  # type: ignore[attr-defined]
         self._declared.clear()
+        with self._lock:  # a Zenoh thread may still be delivering a sample: it finds the channel closed
+            self._closed = True
+            self._wakeup.close()
 
 
 class Busy(Exception):

@@ -4,8 +4,9 @@ A web API with no HTTP client should cost nothing: it keeps no standing subscrip
 ``hw/wheels`` (100 Hz), ``odom/pose``, ``hw/battery`` or ``io/dip``. A route that reads one
 of them subscribes (the first read after a pause), waits for the first sample at most a
 bounded time, and keeps the subscription for `IDLE_S` after its last read, so a client
-polling in a loop is answered at once from the newest sample. The subscriber keeps only the
-newest sample in Zenoh's ring (no Python runs per sample); it is decoded when read, once.
+polling in a loop is answered at once from the newest sample. The subscription is the
+runtime's `Latest`: Zenoh keeps only the newest sample (no Python runs per sample); it is
+decoded when read, once.
 
 The topics are a fixed few: whatever a client asks, at most that many subscriptions.
 """
@@ -17,11 +18,8 @@ import contextlib
 import time
 from typing import Any
 
-import zenoh
-
-from icefloe.errors import BadPayload
-from icefloe.runtime import Node
-from icefloe.schemas import codec, keys
+from icefloe.runtime import Latest, Node
+from icefloe.schemas import keys
 
 IDLE_S = 30.0
 """A topic no route has read for this long is no longer followed, s."""
@@ -33,30 +31,21 @@ FOLLOWED = (keys.WHEELS, keys.ODOM_POSE, keys.HW_BATTERY, keys.DIP)
 
 
 class Followed:
-    """One topic while followed: Zenoh keeps its newest sample; `value` is the newest good one."""
+    """One topic while followed: its newest sample, kept by Zenoh and decoded when read
+    (`icefloe.runtime.Latest`), and when a route last read it."""
 
     def __init__(self, node: Node, topic: keys.Topic) -> None:
         self.topic = topic
-        self.key_expr = node.key(topic)
-        self.value: Any = None
+        self.latest: Latest[Any] = node.latest(topic)
         self.used = self.made = time.monotonic()
-        self._node = node
-        self._sub = node.session.declare_subscriber(self.key_expr, zenoh.handlers.RingChannel(1))
 
     def newest(self) -> Any:
-        """The newest sample that decodes (a bad one is dropped with a line; the last good stays)."""
-        sample = self._sub.try_recv()
-        if sample is not None and self._node.own_key(self.key_expr, str(sample.key_expr)):  # not a wildcard put
-            try:
-                self.value = codec.decode(sample.payload.to_bytes(), str(sample.encoding), self.topic.type,
-                                          self.key_expr)
-            except BadPayload as exc:
-                self._node.limited.warning(self._node.short(self.key_expr), "dropped: %s", exc)
-        return self.value
+        """The newest sample that decoded (a bad one is dropped with a line; the last good stays)."""
+        return self.latest.get()
 
     def close(self) -> None:
         with contextlib.suppress(Exception):  # the session may be closing
-            self._sub.undeclare()
+            self.latest.undeclare()
 
 
 class State:

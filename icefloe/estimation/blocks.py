@@ -21,8 +21,8 @@ import math
 
 import numpy as np
 
-from icefloe.schemas import messages as m
-from icefloe.services.camera.geometry import Mount, range_bearing
+from ..schemas import messages as m
+from ..vision.geometry import Mount, range_bearing
 
 
 def face_normal(rotation: list[float]) -> np.ndarray:

@@ -10,13 +10,12 @@ import logging
 import math
 from collections import deque
 
-from icefloe.config import RobotConfig
-from icefloe.logs import LimitedLog
-from icefloe.schemas import messages as m
-from icefloe.worldmap import load_world
-
-from ..camera.geometry import Mount
-from ..odometry.model import wrap_angle
+from ..angles import wrap_angle
+from ..config import RobotConfig
+from ..logs import LimitedLog
+from ..schemas import messages as m
+from ..vision.geometry import Mount
+from ..worldmap import load_world
 from .blocks import to_centres
 from .ekf import Ekf, Noise, Outcome, increment, pose_from_landmarks, shift_sighting
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from icefloe.config import Camera
-from icefloe.errors import ConfigError
+from ..config import Camera
+from ..errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -72,17 +72,7 @@ def load_calibration(path: str | Path, width: int, height: int) -> Intrinsics:
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"{p}: no such calibration file (camera.calibration)")
-    try:
-        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise ConfigError(f"{p}: not an OpenCV YAML/JSON file: {exc.err}") from None
-    try:
-        k = fs.getNode("camera_matrix").mat()
-        d = fs.getNode("dist_coeffs").mat()
-        w = fs.getNode("image_width").real()
-        h = fs.getNode("image_height").real()
-    finally:
-        fs.release()
+    k, d, w, h = read_storage(p, matrices=("camera_matrix", "dist_coeffs"), numbers=("image_width", "image_height"))
     if k is None or k.shape != (3, 3) or not np.all(np.isfinite(k)):
         raise ConfigError(f"{p}: camera_matrix: expected a 3x3 matrix of finite numbers")
     if k[0, 0] <= 0 or k[1, 1] <= 0 or k[2, 2] != 1:
@@ -95,6 +85,20 @@ def load_calibration(path: str | Path, width: int, height: int) -> Intrinsics:
             f"but the camera captures {width}x{height} (camera.width, camera.height)"
         )
     return Intrinsics(k.astype(np.float64), d.reshape(-1).astype(np.float64), width, height)
+
+
+def read_storage(path: Path, *, matrices: tuple[str, ...], numbers: tuple[str, ...]) -> list:
+    """The nodes of an OpenCV FileStorage file (YAML or JSON): the ``matrices`` (None for one that is
+    missing), then the ``numbers`` (0.0 for one that is missing); `ConfigError` naming the file if
+    OpenCV cannot read it."""
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise ConfigError(f"{path}: not an OpenCV YAML/JSON file: {exc.err}") from None
+    try:
+        return [fs.getNode(name).mat() for name in matrices] + [fs.getNode(name).real() for name in numbers]
+    finally:
+        fs.release()
 
 
 def save_calibration(path: str | Path, intrinsics: Intrinsics, rms_px: float | None = None) -> None:

@@ -10,7 +10,7 @@ import random
 
 import pytest
 
-from icefloe.services.hwbridge.ordering import DRIFT, MAX_SENDERS, CommandOrder, Origin
+from icefloe.ordering import DRIFT, MAX_SENDERS, CommandOrder, Origin
 
 MS = 1_000_000
 S = 1_000_000_000

@@ -1,5 +1,8 @@
 """Differential-drive dead reckoning from encoder counts: pure logic, no bus.
 
+The odometry service runs it on ``hw/wheels``; the square-run harness (`simrun`) on the
+simulated world's counts.
+
 Conventions (the same as the whole bus, see ``schemas/messages.py``):
 
 * Odometry frame: x forward at the start, y to the left, z up; metres.
@@ -32,21 +35,22 @@ arc length, a first-order step that is off by the factor sinc(dth/2).
 
 from __future__ import annotations
 
+import logging
 import math
+import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
+from typing import ClassVar
+
+from ..angles import wrap_angle
+from ..config import RobotConfig
+from ..logs import LimitedLog
+from ..schemas import messages as m
 
 INT16_MIN, INT16_MAX = -32768, 32767
 """Range of a raw 16-bit encoder counter (PenguinPi and icoBoard both count in int16)."""
-
-
-def wrap_angle(a: float) -> float:
-    """``a`` wrapped to (-pi, pi], rad."""
-    w = math.fmod(a + math.pi, 2.0 * math.pi)  # in (-2pi, 2pi), with the sign of a + pi
-    if w <= 0.0:
-        w += 2.0 * math.pi  # now in (0, 2pi]
-    return w - math.pi
 
 
 def sinc(u: float) -> float:
@@ -219,3 +223,39 @@ class Odometry:
         # Keep one sample at or before the horizon so the window spans the full length.
         while len(self._window) > 2 and self._window[1][0] <= horizon:
             self._window.popleft()
+
+
+def make_odometry(config: RobotConfig) -> Odometry:
+    """The pure integrator configured from the robot config."""
+    g, o = config.geometry, config.odometry
+    return Odometry(
+        Geometry(g.wheel_diameter, g.track, g.ticks_per_rev),
+        Limits(o.max_wheel_speed, o.jump_margin, o.gap_s, o.speed_window_s),
+    )
+
+
+def pose_message(odo: Odometry) -> m.Pose:
+    v, w = odo.speeds()
+    return m.Pose(stamp=odo.stamp, x=odo.x, y=odo.y, theta=odo.theta, v=v, w=w)
+
+
+class EventLog:
+    """Logs each unusual sample with what was seen: up to `burst` lines per kind per second.
+
+    A storm (say, a board that keeps resetting) becomes a few lines plus a
+    count instead of a thousand lines a second (`LimitedLog`).
+    """
+
+    INTERESTING: ClassVar[dict[Event, int]] = {Event.GAP: logging.INFO, Event.BACKWARDS: logging.WARNING,
+                                               Event.JUMP: logging.WARNING, Event.BAD: logging.WARNING}
+
+    def __init__(self, log: logging.Logger, clock: Callable[[], float] = time.monotonic, burst: int = 5) -> None:
+        self._limited = LimitedLog(log, burst=burst, limit=2 * burst, clock=clock)
+        self.counts: dict[Event, int] = {e: 0 for e in Event}
+        """Samples seen per kind, since start."""
+
+    def note(self, step: Step) -> None:
+        self.counts[step.event] += 1
+        level = self.INTERESTING.get(step.event)
+        if level is not None:
+            self._limited.write(level, f"hw/wheels {step.event.name.lower()}", "hw/wheels: %s", step.describe())

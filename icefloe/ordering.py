@@ -1,5 +1,8 @@
 """Which motion commands may still drive: the order of commands and stops, and their age.
 
+hwbridge applies these rules to every motion command; the path follower applies them to paths
+(``nav/path``), so a stop wins there too.
+
 Zenoh keeps one queue per priority, so a motion command sent just before a
 stop can arrive after it (``cmd/stop`` travels at real-time priority), and a
 stalled process or network delivers old commands late. hwbridge therefore

@@ -4,8 +4,8 @@ Why: the "done" figures of the odometry and the localizer (docs/odometry.md)
 need ground truth. This drives the simulator's `World` (motor model, slip,
 encoder noise) around a square with a simple wheel-speed driver, feeds the
 encoder counts to the real `Odometry` and the odometry poses and simulated
-landmark sightings to the real localizer (`tracker.Localizer`, the same code
-the service runs), and compares both against the true pose.
+landmark sightings (`icefloe.testing.TruthCamera`) to the real localizer (`localizer.Localizer`,
+the same code the service runs), and compares both against the true pose.
 
 The driver steers on the *true* pose (a perfect operator), so every run drives
 the same path whatever the estimators do; their errors are measured, not fed back.
@@ -21,13 +21,13 @@ import math
 import random
 from dataclasses import dataclass, field
 
-from icefloe.config import RobotConfig
-from icefloe.schemas import messages as m
-from icefloe.sim.world import World
-from icefloe.worldmap import load_world
-
-from ..odometry.model import Geometry, Limits, Odometry, wrap_angle
-from .tracker import Localizer
+from ..angles import wrap_angle
+from ..config import RobotConfig
+from ..schemas import messages as m
+from ..sim.world import World
+from ..testing import TruthCamera
+from .localizer import Localizer
+from .odometry import make_odometry
 
 T0_NS = 1_700_000_000 * 10**9
 """Simulated clock origin, ns since the epoch (any fixed value works)."""
@@ -112,37 +112,6 @@ class Result:
     """Localizer position error at the end of each lap, m."""
 
 
-class Camera:
-    """Range and bearing of the map's markers from the true pose, with noise (the camera's output)."""
-
-    def __init__(self, config: RobotConfig, scenario: Scenario, rng: random.Random) -> None:
-        self.markers = load_world(config.localizer.world).markers
-        c = config.camera
-        self.half_fov = math.atan2(c.width / 2, c.focal_px)
-        self.s, self.rng = scenario, rng
-
-    def frame(self, truth: tuple[float, float, float], stamp: int, result: Result) -> m.Landmarks:
-        x, y, th = truth
-        s, rng = self.s, self.rng
-        seen = []
-        for mk in self.markers:
-            r = math.hypot(mk.x - x, mk.y - y)
-            b = wrap_angle(math.atan2(mk.y - y, mk.x - x) - th)
-            facing = abs(wrap_angle(math.atan2(y - mk.y, x - mk.x) - mk.yaw))  # 0 = seen head-on
-            if abs(b) > self.half_fov or not 0.2 < r < s.max_range or facing > s.max_incidence:
-                continue
-            r += rng.gauss(0.0, math.hypot(s.sigma_range, s.sigma_range_rel * r))
-            b = wrap_angle(b + rng.gauss(0.0, s.sigma_bearing))
-            if rng.random() < s.outlier_rate:
-                result.injected_outliers += 1
-                r, b = r * rng.uniform(1.3, 2.0), wrap_angle(b + rng.choice((-1, 1)) * rng.uniform(0.2, 0.5))
-            seen.append(m.Landmark(id=mk.id, range=r, bearing=b))
-        if rng.random() < s.unknown_rate:
-            seen.append(m.Landmark(id=49, range=1.0, bearing=0.0))
-        result.sightings += len(seen)
-        return m.Landmarks(stamp=stamp, landmarks=seen)
-
-
 class Driver:
     """Wheel-speed driver around the square: a line leg, then a turn on the spot, repeated."""
 
@@ -199,9 +168,7 @@ def square_run(config: RobotConfig, scenario: Scenario) -> Result:
     world = World(config.geometry, seed=scenario.seed, slip=scenario.slip, encoder_noise=scenario.encoder_noise)
     start = (-scenario.side / 2, -scenario.side / 2, 0.0)
     world.set_pose(*start)
-    g, o = config.geometry, config.odometry
-    odo = Odometry(Geometry(g.wheel_diameter, g.track, g.ticks_per_rev),
-                   Limits(o.max_wheel_speed, o.jump_margin, o.gap_s, o.speed_window_s))
+    odo = make_odometry(config)
     odo.reset(*start)  # the odometry frame is the map frame at the start, so errors compare directly
     cfg = config
     if scenario.use_localizer:
@@ -212,7 +179,10 @@ def square_run(config: RobotConfig, scenario: Scenario) -> Result:
             initial_y=start[1] + scenario.initial_error[1], initial_theta=start[2] + scenario.initial_error[2],
             initial_sigma_xy=scenario.initial_sigma_xy, initial_sigma_theta=scenario.initial_sigma_theta))
     loc = Localizer(cfg, logging.getLogger("icefloe.simrun")) if scenario.use_localizer else None
-    camera = Camera(config, scenario, rng)
+    camera = TruthCamera(config, rng, max_range=scenario.max_range, max_incidence=scenario.max_incidence,
+                         sigma_range=scenario.sigma_range, sigma_range_rel=scenario.sigma_range_rel,
+                         sigma_bearing=scenario.sigma_bearing, outlier_rate=scenario.outlier_rate,
+                         unknown_rate=scenario.unknown_rate)
     driver = Driver(world, scenario)
     result = Result()
 
@@ -243,13 +213,14 @@ def square_run(config: RobotConfig, scenario: Scenario) -> Result:
                 loc.on_odometry(m.Pose(stamp=odo.stamp, x=odo.x, y=odo.y, theta=odo.theta))
                 result.localizer.add(loc.ekf.pose, truth)
         if loc is not None and i % every_camera == 0:
-            loc.on_landmarks(camera.frame(truth, stamp, result))
+            loc.on_landmarks(camera.frame(truth, stamp))
             result.localizer.add(loc.ekf.pose, truth)
         if driver.done and max(map(abs, world.wheel_speeds)) < 1e-3:
             result.sim_seconds = i * dt
             break
     else:
         raise RuntimeError("the square run did not finish in 600 simulated seconds")
+    result.sightings, result.injected_outliers = camera.sightings, camera.injected_outliers
     result.odometry.add((odo.x, odo.y, odo.theta), world.pose)
     if loc is not None:
         result.localizer.add(loc.ekf.pose, world.pose)

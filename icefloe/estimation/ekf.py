@@ -52,7 +52,7 @@ from enum import Enum
 
 import numpy as np
 
-from ..odometry.model import wrap_angle
+from ..angles import wrap_angle
 
 
 @dataclass(frozen=True)
@@ -120,7 +120,28 @@ def shift_sighting(rng: float, bearing: float, u: tuple[float, float, float]) ->
     return math.hypot(qx, qy), math.atan2(qy, qx)
 
 
-class Ekf:
+class GatedFilter:
+    """What the localizer's filter (`Ekf`) and SLAM's share: the state ``mu`` with covariance ``P``,
+    corrected by one sighting at a time through the Mahalanobis gate, and counts of what each did."""
+
+    mu: np.ndarray
+    P: np.ndarray
+    gate_chi2: float
+    accepted: int
+    outliers: int
+
+    def correct(self, landmark_id: int, H: np.ndarray, nu: np.ndarray, R: np.ndarray) -> Result:
+        """Correct the state with one sighting (`gated_update`), unless it fails the gate; count which."""
+        mu, P, d2 = gated_update(self.mu, self.P, H, nu, R, self.gate_chi2)
+        if mu is None:
+            self.outliers += 1
+            return Result(Outcome.OUTLIER, landmark_id, d2)
+        self.mu, self.P = mu, P
+        self.accepted += 1
+        return Result(Outcome.ACCEPTED, landmark_id, d2)
+
+
+class Ekf(GatedFilter):
     """EKF localizer over (x, y, theta). `predict` with odometry, `observe` landmarks."""
 
     def __init__(
@@ -196,13 +217,7 @@ class Ekf:
         nu = np.array([rng - r_hat, wrap_angle(bearing - (math.atan2(ddy, ddx) - self.mu[2]))])
         n = self.noise
         R = np.diag([n.sigma_range**2 + (n.sigma_range_rel * rng) ** 2, n.sigma_bearing**2])
-        mu, P, d2 = gated_update(self.mu, self.P, H, nu, R, self.gate_chi2)
-        if mu is None:
-            self.outliers += 1
-            return Result(Outcome.OUTLIER, landmark_id, d2)
-        self.mu, self.P = mu, P
-        self.accepted += 1
-        return Result(Outcome.ACCEPTED, landmark_id, d2)
+        return self.correct(landmark_id, H, nu, R)
 
 
 def gated_update(mu: np.ndarray, P: np.ndarray, H: np.ndarray, nu: np.ndarray, R: np.ndarray,

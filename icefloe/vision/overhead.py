@@ -23,8 +23,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from icefloe.errors import ConfigError
-from icefloe.services.camera.geometry import Intrinsics
+from ..errors import ConfigError
+from .geometry import Intrinsics, read_storage
 
 
 @dataclass(frozen=True)
@@ -157,15 +157,7 @@ def load_pose(path: str | Path, width: int, height: int) -> CameraPose:
     p = Path(path).expanduser()
     if not p.is_file():
         raise ConfigError(f"{p}: no such camera pose file (overhead.pose): run `icefloe extloc calibrate`")
-    try:
-        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise ConfigError(f"{p}: not an OpenCV YAML/JSON file: {exc.err}") from None
-    try:
-        rvec, tvec = fs.getNode("rvec").mat(), fs.getNode("tvec").mat()
-        w, h = fs.getNode("image_width").real(), fs.getNode("image_height").real()
-    finally:
-        fs.release()
+    rvec, tvec, w, h = read_storage(p, matrices=("rvec", "tvec"), numbers=("image_width", "image_height"))
     for name, value in (("rvec", rvec), ("tvec", tvec)):
         if value is None or value.size != 3 or not np.all(np.isfinite(value)):
             raise ConfigError(f"{p}: {name}: expected 3 finite numbers")
