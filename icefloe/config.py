@@ -444,6 +444,20 @@ class Webapi(Section):
     JPEG per request (for clients written against a course simulator that serves one image)."""
 
 
+class Lab(Section):
+    """The lab's emergency stop, in the lab machine's config (``icefloe lab stop``; the lab's page,
+    ``services/labpage``; docs/lab.md)."""
+
+    folder: str = ""
+    """The lab's credentials folder (``icefloe router --lab DIR``'s): the robots to stop, and the
+    TA's login (its file whose robot is "*"). "" = none: the robots alive on the bus, or ``--robot``."""
+    timeout: Annotated[float, Meta(gt=0, le=10)] = 1.0
+    """How long each robot has to confirm a stop, s."""
+    page_host: str = "0.0.0.0"
+    page_port: Port = 8090
+    """The lab's page (``services/labpage``): every robot's stop, for the TA's login only."""
+
+
 class Zenoh(Section):
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
     """Where the robot's router listens; laptops connect here."""
@@ -517,6 +531,7 @@ class RobotConfig(Section):
     planner: Planner = Planner()
     follower: Follower = Follower()
     webapi: Webapi = Webapi()
+    lab: Lab = Lab()
     zenoh: Zenoh = Zenoh()
     source: str = ""
     """The file this config was read from (filled in by `load`)."""
