@@ -44,6 +44,7 @@ OWN: dict[str, tuple[set[str], str]] = {
     "tests/test_bag.py": ({"viz"}, "viz's demo robot's messages, recorded"),
     "tests/test_bag_cli.py": ({"viz"}, "viz's demo robot recorded, and the recording viz makes of it"),
     "tests/test_security.py": ({"viz"}, "what a viz recording holds"),
+    "tests/test_lab_stop.py": ({"oled"}, "the OLED frame a held robot shows, drawn by the OLED's own screens"),
     "tests/test_viewer.py": ({"viz"}, "viz's viewer"),
     "tools/page_screenshot.py": ({"viz"}, "viz's viewer"),
 }
