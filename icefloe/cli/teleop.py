@@ -32,6 +32,8 @@ import time
 import tty
 from dataclasses import dataclass
 
+import msgspec
+
 from .. import labstop
 from ..config import RobotConfig
 from ..errors import IcefloeError
@@ -145,6 +147,8 @@ async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
     robot = args.robot or config.name
     if not keys.is_concrete(robot) or any(c in robot for c in "$?#/"):
         raise IcefloeError(f"--robot {robot!r}: name one robot (a TA's credentials name none: give --robot)")
+    # Its keys are the named robot's: --robot drives that robot, not the config's (nor, for the TA, "*").
+    config = msgspec.structs.replace(config, name=robot)
     async with Node("teleop", config, retry=False) as node:
         if problem := check_robot(await node.alive("*"), robot):
             warn(problem)
