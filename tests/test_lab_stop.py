@@ -18,6 +18,7 @@ About 90 s on this machine (the lab starts in 15-30 s).
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
 import math
 import subprocess
@@ -35,7 +36,7 @@ from test_security import laptop, wildcard_forms
 from icefloe import labstop
 from icefloe.config import RobotConfig
 from icefloe.credentials import Credentials, make, read
-from icefloe.errors import BadPayload, ConfigError, NotReachable
+from icefloe.errors import EXIT_CONFIG, BadPayload, ConfigError, NotReachable
 from icefloe.router import access_control, permits
 from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import codec, keys
@@ -88,6 +89,17 @@ def test_the_labs_folder_names_its_robots_and_its_ta(tmp_path: Path) -> None:
     for bad in ("*", "p$*", "**", "p1/cmd", ""):
         with pytest.raises(ConfigError, match="name one robot"):
             labstop.check_names(["p1", bad])
+
+
+def test_icefloe_lab_refuses_a_bad_argument_in_one_line_before_it_asks_anything(tmp_path: Path) -> None:
+    make(tmp_path / "p1.credentials", "p1")
+    ta_file(tmp_path, ["tcp/127.0.0.1:1"])  # nobody listens there: nothing may be asked
+    for args, wrong in ((["--robot", "p$*"], "robot 'p$*': name one robot"), (["--reason", "x" * 61], "--reason"),
+                        (["--timeout", "0"], "--timeout")):
+        done = subprocess.run([sys.executable, "-m", "icefloe.cli", "lab", "stop", "--lab", str(tmp_path), *args],
+                              capture_output=True, text=True, timeout=60, cwd=ROOT)
+        assert done.returncode == EXIT_CONFIG and wrong in done.stderr, (args, done.stdout, done.stderr)
+        assert len(done.stderr.strip().splitlines()) == 1 and done.stdout == "", done.stderr
 
 
 KEYS_OF_A_ROBOT = (keys.TWIST, keys.WHEELS_CMD, keys.STOP, keys.NAV_PATH, keys.LEDS, keys.OLED_TEXT,
@@ -422,9 +434,90 @@ async def page_shows_the_hold(stoplab: StopLab) -> None:
     async with chromium(stoplab.lab.root / "robot-page-profile") as context:
         page = await context.new_page()
         await page.goto(f"http://127.0.0.1:{stoplab.webapi_port}/")
-        await page.wait_for_selector("#hold:not([hidden])", timeout=15_000)
+        await page.wait_for_selector("#hold:not([hidden])", timeout=60_000)  # Chromium starts slowly on a busy machine
         assert "held stopped by the lab's TA: see me at the desk" in await page.inner_text("#hold")
         assert "driving is refused" in await page.inner_text("#drive-state")
+
+
+# ---------------------------------------------------------------------------- the lab's page, teleop's key
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+async def test_the_labs_page_and_teleops_key_hold_every_robot(stoplab: StopLab) -> None:
+    """The lab's page (``python -m icefloe.services.labpage --config lab.toml``, as the TA's browser
+    sees it) holds every robot with its button and releases them with another; the ``!`` key of
+    the TA's ``icefloe teleop`` holds them all too. The owners' programs drive all along."""
+    from browser import chromium
+    from lab_harness import Proc
+    from terminal import Terminal
+
+    lab = stoplab.lab
+    page = Proc("labpage", [sys.executable, "-m", "icefloe.services.labpage", "--config", str(lab.lab_config)],
+                lab.root / "labpage.log")
+    term: Terminal | None = None
+    async with stoplab.as_ta() as ta, contextlib.AsyncExitStack() as stack:
+        try:
+            await ta_stop(ta, stoplab, "release")  # whatever an earlier test left
+            await reset_worlds(ta, stoplab.names)
+            owners = [await stack.enter_async_context(stoplab.owner(name)) for name in stoplab.names]
+            programs = [Program(node) for node in owners]
+            for name in stoplab.names:
+                await moving(ta, name)
+            await wait_for(lambda: "the lab's page on" in page.log.read_text() or not page.alive(), 60)
+            assert page.alive(), page.tail()
+            login = base64.b64encode(f"{stoplab.ta.user}:{stoplab.ta.password}".encode()).decode()
+            async with chromium(lab.root / "lab-page-profile") as context:
+                browser = await context.new_page()
+                await browser.set_extra_http_headers({"Authorization": f"Basic {login}"})
+                await browser.goto(f"http://127.0.0.1:{stoplab.page_port}/")
+                await browser.wait_for_function(  # every robot listed, alive
+                    "document.querySelectorAll('#robots tbody td.ok').length >= 3", timeout=60_000)
+                await browser.fill("#reason", "hands off, please")
+                asked = {name: (await sim_state(ta, name)).sim_time for name in stoplab.names}
+                await browser.click("#hold-all")
+                await browser.wait_for_function("document.querySelector('#summary').className !== ''",
+                                                timeout=60_000)
+                summary = await browser.inner_text("#summary")
+                assert summary == "3 of 3 robots held stopped and confirmed", summary
+                for name in stoplab.names:  # held (the first test checks that a held robot stays still)
+                    await standing(ta, name, asked[name])
+                    assert (await hold_of(ta, name)).reason == "hands off, please"
+                await browser.wait_for_function(
+                    "document.querySelectorAll('#robots tbody td.held').length === 3", timeout=30_000)
+                await browser.click("#release-all")
+                await browser.wait_for_function(
+                    "document.querySelector('#summary').textContent.includes('released')", timeout=60_000)
+                assert await browser.inner_text("#summary") == "3 of 3 robots released and confirmed"
+            for name in stoplab.names:
+                await moving(ta, name)
+
+            # The TA's teleop: its ! key holds every robot alive on the bus.
+            term = await asyncio.to_thread(
+                Terminal, [sys.executable, "-m", "icefloe.cli", "teleop", "--config", str(lab.lab_config),
+                           "--credentials", str(stoplab.ta_path), "--robot", stoplab.names[0]], cwd=ROOT)
+            await asyncio.to_thread(term.wait_for, "driving", 30)
+            asked = {name: (await sim_state(ta, name)).sim_time for name in stoplab.names}
+            term.send("!")
+            await asyncio.to_thread(term.wait_for, "robots held stopped and confirmed", 30)
+            assert "lab stop: 3 of 3 robots held stopped and confirmed" in term.text, term.text
+            for name in stoplab.names:
+                assert f"lab stop: {name}: confirmed in" in term.text, term.text
+            for name in stoplab.names:
+                await standing(ta, name, asked[name])
+                assert (await hold_of(ta, name)).reason == "teleop's ! key"
+            term.ctrl_c()
+            assert await asyncio.to_thread(term.wait, 15) == 0, term.text
+            answers = await ta_stop(ta, stoplab, "release")
+            assert [(a.confirmed, a.held) for a in answers] == [(True, False)] * 3, answers
+            for program in programs:
+                await program.stop()
+        finally:
+            if term is not None:
+                term.kill()
+            page.interrupt()
+            assert page.wait(15.0), page.tail()
+    print(f"\nthe lab's page: {summary}")
 
 
 # ---------------------------------------------------------------------------- a robot off the network
