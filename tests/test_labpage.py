@@ -19,8 +19,7 @@ from icefloe.labstop import Answer
 from icefloe.logs import LimitedLog
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-from icefloe.services.labpage.__main__ import login_of
-from icefloe.services.labpage.page import LabPage, Login, StopRequest
+from icefloe.services.labpage.page import LabPage, Login, StopRequest, login_of
 from icefloe.services.labpage.roster import MAX_ROBOTS, Roster
 
 

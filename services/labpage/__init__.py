@@ -7,6 +7,6 @@ releases every robot at once, or one. It logs in to the lab router as the lab's 
 folder's file whose robot is "*") and asks the robots as ``icefloe lab stop`` does
 (`icefloe.labstop`); the page asks the same user and password (HTTP Basic).
 
-Modules: ``roster`` (what the page shows of each robot, from the bus; no I/O), ``page`` (the
+Modules: ``roster`` (what the page shows of each robot, from the bus; no I/O), ``page`` (the TA's login and
 HTTP routes, no bus), ``__main__`` (the wiring).
 """

@@ -8,34 +8,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from pathlib import Path
 
 import zenoh
 from aiohttp import web
 
 from icefloe import labstop
 from icefloe.config import RobotConfig
-from icefloe.errors import BadPayload, ConfigError, IcefloeError
+from icefloe.errors import BadPayload, IcefloeError
 from icefloe.runtime import Node, run
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
 
-from .page import LabPage, Login, StopRequest
+from .page import LabPage, StopRequest, login_of
 from .roster import Roster
-
-
-def login_of(config: RobotConfig) -> tuple[labstop.LabFolder, RobotConfig, Login]:
-    """The lab's folder, the config logged in as its TA, and the TA's login for the page;
-    `ConfigError` (one line) for a lab config the page cannot work with."""
-    if not config.lab.folder:
-        raise ConfigError(f"{config.source}: lab.folder is not set: the page needs the lab's credentials folder "
-                          "(its robots, and the TA's credentials file)")
-    folder = labstop.lab_folder(Path(config.lab.folder), config.name)
-    if not folder.ta:
-        raise ConfigError(f"{config.lab.folder}: no TA credentials file (robot = \"*\", docs/lab.md): the page "
-                          "logs in as the lab's TA")
-    ta_config, _ = labstop.ta_config(config, folder)
-    return folder, ta_config, Login(ta_config.zenoh.user, ta_config.zenoh.password)
 
 
 async def main(config: RobotConfig) -> None:

@@ -27,6 +27,8 @@ from typing import Annotated, Literal
 import msgspec
 from aiohttp import web
 
+from icefloe import labstop
+from icefloe.config import RobotConfig
 from icefloe.errors import ConfigError
 from icefloe.labstop import Answer, check_names, summary
 from icefloe.logs import LimitedLog
@@ -70,6 +72,20 @@ class Login:
         # Both parts compared in constant time, always: the answer's timing tells nothing.
         right = hmac.compare_digest(user, self.user.encode()) & hmac.compare_digest(password, self.password.encode())
         return scheme.lower() == "basic" and bool(colon) and right
+
+
+def login_of(config: RobotConfig) -> tuple[labstop.LabFolder, RobotConfig, Login]:
+    """The lab's folder, the config logged in as its TA, and the TA's login for the page;
+    `ConfigError` (one line) for a lab config the page cannot work with."""
+    if not config.lab.folder:
+        raise ConfigError(f"{config.source}: lab.folder is not set: the page needs the lab's credentials folder "
+                          "(its robots, and the TA's credentials file)")
+    folder = labstop.lab_folder(Path(config.lab.folder), config.name)
+    if not folder.ta:
+        raise ConfigError(f"{config.lab.folder}: no TA credentials file (robot = \"*\", docs/lab.md): the page "
+                          "logs in as the lab's TA")
+    ta_config, _ = labstop.ta_config(config, folder)
+    return folder, ta_config, Login(ta_config.zenoh.user, ta_config.zenoh.password)
 
 
 def json_error(status: int, message: str, headers: dict[str, str] | None = None) -> web.Response:
