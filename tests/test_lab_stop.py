@@ -649,6 +649,18 @@ async def test_the_tas_credentials_stop_and_do_nothing_else_and_nobody_else_stop
             f"robot 0's targets fell to {targets.low} while the guest and its neighbour sent stops"
         assert replies == [], f"the attackers' queries got answers: {replies[:5]}"
         assert not (await hold_of(owner, r0)).held
+        # The TA's own cmd/stop on robot 0's key does stop it: it cuts its owner's timed motion short.
+        await program.stop()
+        motion = asyncio.ensure_future(owner.query(keys.MOTION, owner.command(
+            m.Motion, left=0.5 * SPEED, right=1.5 * SPEED, duration=30.0), timeout=40.0))
+        await moving(ta, r0)
+        asked = (await sim_state(ta, r0)).sim_time
+        ta.publisher(keys.STOP, robot=r0).put(ta.command(m.Stop))
+        cut = await motion
+        assert not cut.completed and "cmd/stop" in cut.reason, cut
+        await standing(ta, r0, asked)
+        program = Program(owner)
+        await moving(ta, r0)
 
         # 3. The TA holds robot 0; its owner tries to release it by every form of lab/stop (the
         #    router refuses the key, the services the wildcards) and by cmd/release: still held.
