@@ -323,6 +323,7 @@ async def test_the_ta_stops_every_robot_holds_one_or_all_and_a_held_robot_ignore
         owners = {name: await stack.enter_async_context(stoplab.owner(name)) for name in stoplab.names}
         log = owners[r0].subscribe(keys.LOG, latest=False, maxsize=1000, robot=r0)
 
+        await ta_stop(ta, stoplab, "release")  # whatever an earlier test left
         await reset_worlds(ta, stoplab.names)
 
         # 1. Every owner runs a timed motion; the TA's plain stop ends each (as cmd/stop does).
@@ -574,6 +575,7 @@ async def test_the_tas_credentials_stop_and_do_nothing_else_and_nobody_else_stop
     r0, r1, _r2 = stoplab.names
     async with stoplab.as_ta() as ta, stoplab.owner(r0) as owner, stoplab.owner(r1) as neighbour, \
             laptop(stoplab.lab.endpoint) as guest:
+        await ta_stop(ta, stoplab, "release")  # whatever an earlier test left
         await reset_worlds(ta, stoplab.names)
         poses = owner.subscribe(keys.ODOM_POSE)
         pose_before = await asyncio.wait_for(anext(poses), 10)
@@ -651,6 +653,7 @@ async def test_the_tas_credentials_stop_and_do_nothing_else_and_nobody_else_stop
         assert not (await hold_of(owner, r0)).held
         # The TA's own cmd/stop on robot 0's key does stop it: it cuts its owner's timed motion short.
         await program.stop()
+        await standing(ta, r0, -1.0)  # so that moving, below, is the motion's doing
         motion = asyncio.ensure_future(owner.query(keys.MOTION, owner.command(
             m.Motion, left=0.5 * SPEED, right=1.5 * SPEED, duration=30.0), timeout=40.0))
         await moving(ta, r0)

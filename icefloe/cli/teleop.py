@@ -173,7 +173,7 @@ async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
             loop.add_signal_handler(sig, quit_.set)
         try:
             await drive_loop(drive, keys_in, quit_, twist, stop, pose, 1.0 / args.rate, node.command,
-                             lambda: lab_hold(node))
+                             lambda: lab_hold(node, config.lab.timeout))
         finally:
             stop.put(node.command(m.Stop))  # whatever ended teleop: the wheels stop
             loop.remove_reader(fd)
@@ -187,9 +187,11 @@ async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
     return 0
 
 
-async def lab_hold(node: Node) -> list[str]:
-    """The ``!`` key: hold every robot alive on the bus stopped (`labstop.stop`); the lines to print."""
-    answers = await labstop.stop(node, node.command(m.LabStop, action="hold", reason="teleop's ! key"))
+async def lab_hold(node: Node, timeout: float) -> list[str]:
+    """The ``!`` key: hold every robot alive on the bus stopped (`labstop.stop`), each given ``timeout``
+    s to confirm (``[lab] timeout`` of the config); the lines to print."""
+    answers = await labstop.stop(node, node.command(m.LabStop, action="hold", reason="teleop's ! key",
+                                                    timeout=timeout))
     if not answers:
         return ["lab stop: no robot's hwbridge is alive on the bus"]
     lines = [f"lab stop: {a.line()}" for a in answers]
