@@ -87,6 +87,21 @@ def test_a_file_of_the_locks_version_built_again_is_refused(checkout: Path, whee
     assert "smbus2 0.6.1: smbus2-0.6.1-py3-none-any.whl is not a file the lock lists" in refusal(checkout, wheelhouse)
 
 
+def test_a_wheel_the_lock_lists_for_another_machine_is_refused(tmp_path: Path, checkout: Path,
+                                                              wheelhouse: Path) -> None:
+    # The lock lists every machine's files: a wheelhouse downloaded on a laptop for a Pi (or the other way)
+    # passes a hash check, and pip would fail half-way through the install.
+    foreign = wheelhouse / "smbus2-0.6.1-cp311-cp311-manylinux_2_17_s390x.whl"
+    (wheelhouse / "smbus2-0.6.1-py3-none-any.whl").rename(foreign)
+    lines = (checkout / "deploy/requirements/robot.txt").read_text()
+    (checkout / "deploy/requirements/robot.txt").write_text(lines.replace(
+        "smbus2==0.6.1 \\\n", f"smbus2==0.6.1 \\\n    --hash=sha256:{sha256(foreign)} \\\n"))
+    assert "smbus2 0.6.1: smbus2-0.6.1-cp311-cp311-manylinux_2_17_s390x.whl is for another machine or Python" \
+        in refusal(checkout, wheelhouse)
+    locked = lock.pins(["build", "robot"], directory=checkout / "deploy/requirements")
+    assert lock.wheelhouse_problems(wheelhouse, locked) == []  # (the box's check, for another machine: no tags)
+
+
 def test_no_such_folder_is_refused(checkout: Path, tmp_path: Path) -> None:
     assert f"{tmp_path / 'nowhere'}: no such folder" in refusal(checkout, tmp_path / "nowhere")
 
