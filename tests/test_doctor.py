@@ -89,7 +89,8 @@ def test_healthy_robot_has_no_problem_on_it_or_from_a_laptop(robot: Robot) -> No
     res = healthy(robot)
     assert problems(res) == [] and res.stderr == ""
     summary = res.stdout.splitlines()[-1]
-    assert summary.startswith(f"OK: robot {robot.name}: 5 of 5 alive") and "camera delivering" in summary, res.stdout
+    assert summary.startswith(f"OK: robot {robot.name}: ") and "packages as locked, 5 of 5 alive" in summary, res.stdout
+    assert "camera delivering" in summary, res.stdout
     assert "not checked: devices: a simulated board" in res.stdout  # no device to look at
 
     # From a laptop: the robot's config for its service list, its router's address, no credentials
