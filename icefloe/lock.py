@@ -197,7 +197,7 @@ def wheelhouse_problems(directory: Path, locked: Mapping[str, Pin], tags: Collec
                             f"lists (another version, or another build)")
         elif tags is not None and not any(installable(f, tags) for f in listed):
             problems.append(f"{name} {pin.version}: {', '.join(f.name for f in listed)} is for another machine "
-                            f"or Python, not this one ({this_machine()})")
+                            "or Python, not this one")
     return problems
 
 
