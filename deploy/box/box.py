@@ -16,8 +16,10 @@ group and mode the install's udev rule gives the Pi's UART (the box has no udev)
 the simulator's truth stay outside, as the floor does for a real robot: `board pose` reads them.
 
 What a Raspberry Pi has and the box lacks is said explicitly, in the install's own flags (docs/box.md):
-``./deploy/up.sh penguin1 --install --no-boot-config``. Box infrastructure, not the robot's: pi's
-passwordless sudo (the TA typing a password), a pip and an apt cache bound from the host.
+``./deploy/up.sh penguin1 --install --no-boot-config --wheelhouse=/var/cache/icefloe-box/wheels``, the
+wheelhouse being the lock's files for the box's machine, downloaded here once per lock (`wheelhouse`).
+Box infrastructure, not the robot's: pi's passwordless sudo (the TA typing a password), a pip and an apt
+cache bound from the host.
 """
 
 from __future__ import annotations
