@@ -390,14 +390,25 @@ def _every_service_on_the_bus(box: Box) -> str:
     return r.stdout if r.returncode == 0 and all(s in r.stdout.split() for s in ["router", *SERVICES]) else ""
 
 
-def _killed_and_restarted(box: Box, unit: str) -> None:
-    """SIGKILL to every process of ``unit``: systemd starts it again (a new main process), and every
-    service is back on the bus (the router's restart takes the others with it: they Require= it)."""
-    before = box.units()[unit]["MainPID"]
-    box.run(f"systemctl kill -s KILL {unit}")
-    wait_for(f"{unit} restarted", lambda: (u := box.units()[unit])["ActiveState"] == "active"
-             and u["MainPID"] not in ("0", before), 60, 1)
-    wait_for(f"every service on the bus after {unit}'s SIGKILL", lambda: _every_service_on_the_bus(box), 60, 2)
+def _killed_and_restarted(box: Box, *units: str) -> None:
+    """SIGKILL to every process of each of ``units`` at once: systemd starts each again (a new main
+    process), and every service is back on the bus (the router's restart takes the others with it: they
+    Require= it)."""
+    before = box.units()
+    box.run(f"systemctl kill -s KILL {' '.join(units)}")
+
+    def not_restarted() -> list[str]:
+        now = box.units()
+        return [u for u in units
+                if now[u]["ActiveState"] != "active" or now[u]["MainPID"] in ("0", before[u]["MainPID"])]
+
+    try:
+        wait_for(f"{', '.join(units)} restarted", lambda: not not_restarted(), 60, 1)
+    except AssertionError:
+        raise AssertionError(f"not restarted within {60 * SLOW} s of the SIGKILL: "
+                             f"{', '.join(not_restarted())}") from None
+    wait_for(f"every service on the bus after the SIGKILL of {', '.join(units)}",
+             lambda: _every_service_on_the_bus(box), 60, 2)
 
 
 def test_4_a_killed_hwbridge_restarts_and_the_robot_drives_again(box: Box) -> None:
@@ -406,15 +417,14 @@ def test_4_a_killed_hwbridge_restarts_and_the_robot_drives_again(box: Box) -> No
 
 
 def test_4_every_other_service_killed_restarts_and_the_robot_drives_again(box: Box) -> None:
-    # The router first: the commands' path (it restarts every service with it); then each template
-    # unit's instance on its own. One drive after each group: only the router and hwbridge carry a
-    # command, and each instance's restart is checked on the bus.
+    # The router first: the commands' path (it restarts every service with it); then every template
+    # unit's instance at once (each its own process: each must restart). A drive after each: only the
+    # router and hwbridge carry a command, and each instance's restart is checked on the bus.
     _killed_and_restarted(box, "icefloe-router.service")
     _drives_a_metre(box, "after the router's SIGKILL")
-    for unit in UNITS:
-        if unit.startswith("icefloe@"):
-            _killed_and_restarted(box, unit)
-    _drives_a_metre(box, f"after {', '.join(u for u in UNITS if u.startswith('icefloe@'))} were killed")
+    instances = [unit for unit in UNITS if unit.startswith("icefloe@")]
+    _killed_and_restarted(box, *instances)
+    _drives_a_metre(box, f"after the SIGKILL of {', '.join(instances)}")
 
 
 def _hwbridge_log_since(box: Box, stamp: str) -> str:
