@@ -45,6 +45,8 @@ SERVICES = ["info", "hwbridge", "odometry", "localizer", "power", "oled", "webap
 """penguin1's services that run in the box (the camera has no picamera2 here: check 5)."""
 UNITS = ["icefloe-router.service", "icefloe-hwbridge.service",
          *(f"icefloe@{s}.service" for s in SERVICES if s != "hwbridge")]
+FORKSERVER = "icefloe-forkserver.service"
+"""Root's (the services' units are icefloe's): it starts every unit's service as a copy of itself."""
 PORTS = (7447, 8080)
 ROUTER = "tcp/127.0.0.1:7447"
 WEBAPI = "http://127.0.0.1:8080"
@@ -117,8 +119,8 @@ class Box:
     def board(self, action: str) -> str:
         return self.sh("board", action).stdout.strip()
 
-    def units(self) -> dict[str, dict[str, str]]:
-        names = " ".join([*UNITS, "icefloe@camera.service"])
+    def units(self, *extra: str) -> dict[str, dict[str, str]]:
+        names = " ".join([*UNITS, "icefloe@camera.service", *extra])
         out = self.run(f"systemctl show -p Id,ActiveState,SubState,MainPID,Result,NRestarts,ExecMainStatus {names}"
                        ).stdout
         result: dict[str, dict[str, str]] = {}
@@ -296,6 +298,17 @@ def test_2_after_a_reboot_every_unit_runs_as_icefloe(box: Box) -> None:
         assert user == "icefloe", (unit, user)
         environ = box.run(f"tr '\\0' '\\n' < /proc/{units[unit]['MainPID']}/environ").stdout.splitlines()
         assert {f"{k}={v}" for k, v in SERVICE_ENV.items()} <= set(environ), (unit, environ)
+    # Every unit's process is a copy of the fork server (root, its own unit), made like its unit: the
+    # user above, and the unit's cgroup (what systemd stops, restarts and accounts). docs/deploy.md, "Memory".
+    server = box.units(FORKSERVER)[FORKSERVER]
+    assert server["ActiveState"] == "active", server
+    assert box.run(f"ps -o user= -p {server['MainPID']}").stdout.strip() == "root"
+    started = box.run("journalctl -b -u icefloe-forkserver --no-pager -o cat").stdout
+    for unit in UNITS:
+        pid = units[unit]["MainPID"]
+        assert f" as pid {pid} for pid " in started, (unit, pid, started)
+        cgroup = box.run(f"cat /proc/{pid}/cgroup").stdout
+        assert f"/{unit}\n" in cgroup, (unit, cgroup)
     # hwbridge's cycle (its rt child process): SCHED_FIFO with memory locked, or one line saying so
     journal = box.run("journalctl -b -u icefloe-hwbridge --no-pager -o cat").stdout
     rt = box.run("pid=$(pgrep -u icefloe -f 'services[.]hwbridge[.]rt' | head -1) && chrt -p $pid && "
@@ -425,6 +438,24 @@ def test_4_every_other_service_killed_restarts_and_the_robot_drives_again(box: B
     instances = [unit for unit in UNITS if unit.startswith("icefloe@")]
     _killed_and_restarted(box, *instances)
     _drives_a_metre(box, f"after the SIGKILL of {', '.join(instances)}")
+
+
+def test_4_without_the_fork_server_every_service_runs_and_restarts_on_its_own(box: Box) -> None:
+    """The fork server stopped: the services it started run on (they are not its children); a killed
+    service restarts as a fresh Python, saying so in one line; the robot drives. Then it is back."""
+    before = box.units()
+    stopped = box.run("date +%s.%N").stdout.strip()
+    box.run(f"systemctl stop {FORKSERVER}")
+    try:
+        after = box.units()
+        assert all(after[u]["MainPID"] == before[u]["MainPID"] for u in UNITS), (before, after)
+        _killed_and_restarted(box, "icefloe@odometry.service", "icefloe-hwbridge.service")
+        alone = box.run(f"journalctl -u icefloe@odometry -u icefloe-hwbridge --since @{stopped} --no-pager -o cat "
+                        "| grep 'did not start it'").stdout.strip().splitlines()
+        assert len(alone) == 2 and all("starting it on its own" in line for line in alone), alone
+        _drives_a_metre(box, "after hwbridge's restart without the fork server")
+    finally:
+        box.run(f"systemctl start {FORKSERVER}")
 
 
 def _hwbridge_log_since(box: Box, stamp: str) -> str:
