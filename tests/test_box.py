@@ -296,13 +296,18 @@ def test_2_after_a_reboot_every_unit_runs_as_icefloe(box: Box) -> None:
     for unit in UNITS:
         user = box.run(f"ps -o user= -p {units[unit]['MainPID']}").stdout.strip()
         assert user == "icefloe", (unit, user)
-        environ = box.run(f"tr '\\0' '\\n' < /proc/{units[unit]['MainPID']}/environ").stdout.splitlines()
-        assert {f"{k}={v}" for k, v in SERVICE_ENV.items()} <= set(environ), (unit, environ)
+        # The unit's environment is the service's (the request carries it); /proc/<pid>/environ cannot
+        # say so: a copy's is the fork server's memory, which setproctitle reused for the command line.
+        environment = box.run(f"systemctl show -p Environment --value {unit}").stdout.split()
+        assert {f"{k}={v}" for k, v in SERVICE_ENV.items()} <= set(environment), (unit, environment)
     # Every unit's process is a copy of the fork server (root, its own unit), made like its unit: the
     # user above, and the unit's cgroup (what systemd stops, restarts and accounts). docs/deploy.md, "Memory".
     server = box.units(FORKSERVER)[FORKSERVER]
     assert server["ActiveState"] == "active", server
     assert box.run(f"ps -o user= -p {server['MainPID']}").stdout.strip() == "root"
+    # what glibc and OpenBLAS read once, at the start of a process: the fork server's, which the copies keep
+    environment = box.run(f"systemctl show -p Environment --value {FORKSERVER}").stdout.split()
+    assert {f"{k}={v}" for k, v in SERVICE_ENV.items()} <= set(environment), environment
     started = box.run("journalctl -b -u icefloe-forkserver --no-pager -o cat").stdout
     for unit in UNITS:
         pid = units[unit]["MainPID"]
@@ -445,7 +450,8 @@ def test_4_without_the_fork_server_every_service_runs_and_restarts_on_its_own(bo
     service restarts as a fresh Python, saying so in one line; the robot drives. Then it is back."""
     before = box.units()
     stopped = box.run("date +%s.%N").stdout.strip()
-    box.run(f"systemctl stop {FORKSERVER}")
+    # masked, or a service's restart would start it again (the units want it)
+    box.run(f"systemctl mask --runtime {FORKSERVER} && systemctl stop {FORKSERVER}")
     try:
         after = box.units()
         assert all(after[u]["MainPID"] == before[u]["MainPID"] for u in UNITS), (before, after)
@@ -455,7 +461,7 @@ def test_4_without_the_fork_server_every_service_runs_and_restarts_on_its_own(bo
         assert len(alone) == 2 and all("starting it on its own" in line for line in alone), alone
         _drives_a_metre(box, "after hwbridge's restart without the fork server")
     finally:
-        box.run(f"systemctl start {FORKSERVER}")
+        box.run(f"systemctl unmask --runtime {FORKSERVER} && systemctl start {FORKSERVER}")
 
 
 def _hwbridge_log_since(box: Box, stamp: str) -> str:
