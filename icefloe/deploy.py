@@ -39,6 +39,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from packaging.tags import sys_tags
+
 from . import config as config_mod
 from . import credentials as credentials_mod
 from . import lock, paths
@@ -395,7 +397,9 @@ def check_wheelhouse(source: str, extras: str, wheelhouse: Path) -> None:
             raise ConfigError(f"--wheelhouse: {source} is a pip requirement, which carries no lock to check "
                               "the wheelhouse against: give a wheel file or a checkout")
         locked = lock.pins([f.stem for f in lock_files(folder, extras)], directory=folder)
-        problems = lock.wheelhouse_problems(wheelhouse, locked)
+        # only wheels this machine can install: the lock lists every machine's files (an x86_64 laptop's
+        # download would pass a hash check for a Pi, and pip would then fail half-way through the install)
+        problems = lock.wheelhouse_problems(wheelhouse, locked, tags=set(sys_tags()))
     if problems:
         more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
         raise ConfigError(f"--wheelhouse {wheelhouse}: does not match the lock ({lock.this_machine()}): "

@@ -16,8 +16,10 @@ group and mode the install's udev rule gives the Pi's UART (the box has no udev)
 the simulator's truth stay outside, as the floor does for a real robot: `board pose` reads them.
 
 What a Raspberry Pi has and the box lacks is said explicitly, in the install's own flags (docs/box.md):
-``./deploy/up.sh penguin1 --install --no-boot-config``. Box infrastructure, not the robot's: pi's
-passwordless sudo (the TA typing a password), a pip and an apt cache bound from the host.
+``./deploy/up.sh penguin1 --install --no-boot-config --wheelhouse=/var/cache/icefloe-box/wheels``, the
+wheelhouse being the lock's files for the box's machine, downloaded here once per lock (`wheelhouse`).
+Box infrastructure, not the robot's: pi's passwordless sudo (the TA typing a password), a pip and an apt
+cache bound from the host.
 """
 
 from __future__ import annotations
@@ -56,8 +58,13 @@ READY = ".icefloe-box-ready"
 """Marker file in a finished cached root (a root half made by an interrupted build has none)."""
 BOX_PIP = "/var/cache/icefloe-box/pip"
 BOX_WHEELS = "/var/cache/icefloe-box/wheels"
-EXTRAS = ("viz", "robot")
-"""The extras of the README's command and of the robot install: their wheels are kept (`wheelhouse`)."""
+LOCKED = ("build", "planner", "viz", "robot")
+"""The lock's exports whose files the box's wheelhouse holds: what the README's command (build, viz) and the
+robot install (build, planner, robot) take from the lock (`wheelhouse`)."""
+BOX_PYTHON = "3.11"
+"""Bookworm's Python: the box's, and a Raspberry Pi OS robot's (the wheelhouse holds its wheels)."""
+MACHINE = {"amd64": "x86_64", "arm64": "aarch64"}
+"""Debian's name of an architecture -> the machine the lock's markers name (``platform_machine``)."""
 BOX_APT = "/var/cache/apt/archives"
 BOARD_CONFIG = "sim"
 """The simulated robot's config gives the board model (penguin1 extends it: the same geometry)."""
@@ -70,11 +77,6 @@ EMULATED = {"arm64": "aarch64"}
 """A box of this architecture runs its programs under qemu's user emulation (binfmt_misc: qemu-<name>)."""
 SLOWER = {"arm64": 10.0}
 """How much longer the box's own waits (boot, reboot) are under emulation (docs/box.md: measured)."""
-PIP_TARGET = {"arm64": [*(f"--platform=manylinux_2_{m}_aarch64" for m in range(36, 16, -1)),
-                        "--platform=manylinux2014_aarch64", "--python-version=3.11", "--implementation=cp",
-                        "--abi=cp311", "--only-binary=:all:"]}
-"""pip download's target for a foreign box: bookworm's Python 3.11 and glibc 2.36 (pip does not widen
-manylinux_2_36 to the older glibc tags itself), wheels only (nothing is built for another machine)."""
 
 
 def say(msg: str) -> None:
@@ -176,34 +178,76 @@ def build(cache: Path, arch: str, rebuild: bool = False) -> Path:
     return root
 
 
-def wheelhouse(repo: Path, folder: Path, arch: str = "amd64") -> None:
-    """The wheels of icefloe's dependencies (with `EXTRAS`), downloaded here once per pyproject.toml.
-
-    pip's own HTTP cache (bound as well) saves nothing where a proxy marks PyPI's answers
-    no-store, as on the machine this was made on; pip in the box still asks PyPI which versions
-    exist, and takes a file from here (find-links) when it is the one it would have downloaded.
-    """
+def locked_pins(repo: Path, rev: str, arch: str) -> tuple[dict, str]:
+    """The lock's pins for a box of ``arch`` (`LOCKED`: what its installs take), read from ``rev`` of
+    ``repo`` (the commit the box clones, not the working tree), and a digest of those exports."""
     import hashlib
-    import tomllib
+    import tempfile
 
-    pyproject = (repo / "pyproject.toml").read_bytes()
-    stamp = folder / f".stamp-{hashlib.sha256(pyproject).hexdigest()[:16]}"
+    from icefloe import lock
+
+    digest = hashlib.sha256(f"{arch} {BOX_PYTHON}".encode())
+    with tempfile.TemporaryDirectory(prefix="icefloe-box-lock-") as tmp:
+        for name in LOCKED:
+            path = f"deploy/requirements/{name}.txt"
+            r = subprocess.run(["git", "-C", str(repo), "show", f"{rev}:{path}"], capture_output=True, text=True)
+            if r.returncode != 0:
+                raise BoxError(f"{repo} at {rev}: no {path} (the lock's export; tools/lock.py makes it): "
+                               f"{r.stderr.strip()}")
+            (Path(tmp) / f"{name}.txt").write_text(r.stdout)
+            digest.update(r.stdout.encode())
+        environment = lock.environment(MACHINE[arch], BOX_PYTHON)
+        try:
+            return lock.pins(LOCKED, environment=environment, directory=Path(tmp)), digest.hexdigest()[:16]
+        except lock.LockError as exc:
+            raise BoxError(f"{repo} at {rev}: {exc}") from None
+
+
+def pip_target(arch: str) -> list[str]:
+    """pip download's options for a box of ``arch``: bookworm's CPython 3.11 and glibc 2.36 (pip does not
+    widen manylinux_2_36 to the older glibc tags itself), wheels only (the box has no compiler), whatever
+    Python and machine this is."""
+    machine = MACHINE[arch]
+    return [*(f"--platform=manylinux_2_{m}_{machine}" for m in range(36, 16, -1)),
+            f"--platform=manylinux2014_{machine}", f"--python-version={BOX_PYTHON}", "--implementation=cp",
+            f"--abi=cp{BOX_PYTHON.replace('.', '')}", "--only-binary=:all:"]
+
+
+def wheelhouse(repo: Path, folder: Path, arch: str = "amd64", rev: str = "HEAD") -> None:
+    """The lock's files for a box of ``arch``, downloaded once per lock into ``folder`` (docs/box.md).
+
+    Exactly the lock's: each pin of `LOCKED` with its hashes, ``pip download --no-deps
+    --require-hashes`` (pip checks every file's sha256), then checked as the robot install checks a
+    wheelhouse (`icefloe.lock.wheelhouse_problems`); a file of an older lock is removed. A wheelhouse
+    that does not match is an error naming what is missing.
+    """
+    from icefloe import lock
+
+    locked, digest = locked_pins(repo, rev, arch)
+    stamp = folder / f".stamp-{digest}"
     if stamp.exists():
         return
-    project = tomllib.loads(pyproject.decode())["project"]
-    wanted = [*project["dependencies"], *(d for e in EXTRAS for d in project["optional-dependencies"][e]),
-              "setuptools>=69", "pip", "wheel"]
     folder.mkdir(parents=True, exist_ok=True)
-    say(f"downloading the wheels icefloe needs into {folder} (once per pyproject.toml)")
-    r = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--dest", str(folder),
-                        *PIP_TARGET.get(arch, []), *wanted],
-                       capture_output=True, text=True)
-    if r.returncode != 0:  # not fatal: pip in the box downloads what is missing
-        say(f"could not fill the wheelhouse: {r.stderr.strip().splitlines()[-1:]}")
-        return
+    say(f"downloading the lock's {len(locked)} packages for {arch} into {folder} (once per lock)")
+    start = time.monotonic()
+    pinned = folder / ".requirements.txt"
+    pinned.write_text("".join(pin.requirement() + "\n" for _, pin in sorted(locked.items())))
+    r = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--require-hashes",
+                        "--dest", str(folder), *pip_target(arch), "-r", str(pinned)], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise BoxError(f"pip could not download the lock's files into {folder}: "
+                       + " ".join(r.stderr.strip().splitlines()[-3:]))
+    allowed = set().union(*(pin.hashes for pin in locked.values()))
+    for f in folder.iterdir():
+        if f.is_file() and not f.name.startswith(".") and lock.sha256(f) not in allowed:
+            f.unlink()  # another lock's file: the box takes the lock's only
+    problems = lock.wheelhouse_problems(folder, locked)
+    if problems:
+        raise BoxError(f"the wheelhouse {folder} does not match the lock after pip's download: " + "; ".join(problems))
     for old in folder.glob(".stamp-*"):
         old.unlink()
     stamp.touch()
+    say(f"wheelhouse ready in {time.monotonic() - start:.0f} s: {len(locked)} packages as locked")
 
 
 # ---------------------------------------------------------------------------------------- state
@@ -534,7 +578,7 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
                        f"this machine's network: stop what uses it (a robot running here?) and try again")
     emulation(args.arch, setuid=True)
     lower = build(args.cache, args.arch)
-    wheelhouse(args.repo, wheels_dir(args.cache, args.arch), args.arch)
+    wheelhouse(args.repo, wheels_dir(args.cache, args.arch), args.arch, args.rev)
     shutil.rmtree(state.dir, ignore_errors=True)
     state.dir.mkdir(parents=True, mode=0o700)
     for cache in ("pip", "apt", "wheels"):
@@ -597,8 +641,9 @@ def make_pi(state: State) -> None:
     say("user pi (home 0700, sudo) with the repository in /home/pi/icefloe")
 
 
-INSTALL = "./deploy/up.sh {robot} --install --no-boot-config"
-"""The install as the TA runs it on a Pi, with the box's explicit differences (docs/box.md)."""
+INSTALL = f"./deploy/up.sh {{robot}} --install --no-boot-config --wheelhouse={BOX_WHEELS}"
+"""The install as the TA runs it on a Pi, with the box's explicit differences (docs/box.md), from the box's
+wheelhouse: the lock's files only, nothing downloaded (the install refuses a wheelhouse that is not the lock's)."""
 
 
 def install(state: State, robot: str) -> None:
