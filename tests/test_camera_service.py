@@ -8,6 +8,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 from conftest import Robot, wait_for
 
 from icefloe.schemas import keys
@@ -17,7 +18,13 @@ from icefloe.vision.geometry import Intrinsics, Mount
 from icefloe.worldmap import load_world
 
 
-async def test_simulated_camera_publishes_landmarks_images_and_snapshots(robot: Robot) -> None:
+@pytest.mark.parametrize("camera", ["", "[camera]\nwidth = 320\nheight = 240\nfocal_px = 250.0\nimage_width = 160\n"
+                                        "image_height = 120\n"], ids=["640x480", "320x240"])
+async def test_simulated_camera_publishes_landmarks_images_and_snapshots(make_robot, camera: str) -> None:
+    """At the default 640x480 and at a robot's smaller frame (the same lens: the focal length
+    halved with the width), the simulated camera renders the configured size, and the same
+    markers are found in it."""
+    robot: Robot = make_robot(camera)
     cfg = robot.config
     renderer = CameraRenderer(load_world(cfg.sim.world), Intrinsics.from_config(cfg.camera),
                               Mount.from_config(cfg.camera), cfg.camera.dictionary)
