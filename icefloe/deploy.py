@@ -497,6 +497,10 @@ def services_of(config: RobotConfig) -> list[str]:
     return [s for s in config.services if s not in ("hwbridge", "sim")]
 
 
+SLICE = "icefloe.slice"
+"""Every unit's slice: the robot's services apart from the students' programs (docs/deploy.md)."""
+
+
 def unit_names(config: RobotConfig) -> list[str]:
     return ["icefloe.target", "icefloe-forkserver.service", "icefloe-router.service", "icefloe-hwbridge.service",
             *(f"icefloe@{s}.service" for s in services_of(config))]
@@ -701,6 +705,9 @@ def remove_plan(manifest: Manifest, purge: bool = False) -> list[Action]:
         plan.append(Action(f"stop and disable: {' '.join(units_)}",
                            ("systemctl", "disable", *(("--now",) if running else ()), *units_),
                            tolerant="systemctl could not disable them (gone already?)"))
+        if running:  # the units' slice (deploy/systemd/icefloe.slice) stays up, empty, until stopped
+            plan.append(Action(f"stop {SLICE}", ("systemctl", "stop", SLICE),
+                               tolerant=f"systemctl could not stop {SLICE} (gone already?)"))
     files = [Path(p) for (p,) in manifest.of("file")]
     plan += [Action(f"remove {p}", ("rm", "-f", str(p))) for p in files]
     if units_ and systemd_running():

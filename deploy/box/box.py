@@ -1,8 +1,9 @@
 """The robot in a box: a fresh Debian bookworm booted with systemd-nspawn, installed as a TA would.
 
     deploy/box.sh [up]            build the root once (cached), boot a fresh copy, install penguin1 as pi
+                                  (in a memory limit the size of a Raspberry Pi 3B's: --memory MIB)
     deploy/box.sh exec [--user pi] -- CMD...   run a command in the box
-    deploy/box.sh board pose|unplug|plug       the board outside the box (pose: the simulator's truth)
+    deploy/box.sh board pose|unplug|plug|stopped   the board outside the box (pose: the simulator's truth)
     deploy/box.sh reboot | down               reboot the box | power it off and throw it away
 
 The root (`build`) is made once with debootstrap from Debian's packages and kept in a cache outside
@@ -368,11 +369,78 @@ class Board:
         x, y, theta = self.sim.world.pose
         return f"{x:.6f} {y:.6f} {theta:.6f}"
 
+    def stopped(self) -> str:
+        """Since when both wheels' duty has been zero, on this machine's ``time.monotonic()`` clock
+        (a test outside the box times a stop with it), or ``moving``."""
+        world = self.sim.world
+        now, since = time.monotonic(), world.zero_duty_since
+        if since < 0:
+            return "moving"
+        return f"{now - (world.time - since):.6f}"  # the simulator's clock runs at the real rate
+
     def close(self) -> None:
         self.sim.close()
 
 
 # ---------------------------------------------------------------------------------------- supervisor
+
+PI3B_MEMORY_MIB = 925
+"""What a Raspberry Pi 3B's Linux has of its 1 GB, the GPU's share taken out: `free -m`'s total on a
+Pi 3 Model B (andythemoron.com/blog/2017-04-23/Understanding-Linux-Memory-Usage). The box (its own
+systemd, the robot and a student's programs) gets this much, as a cgroup's limit (docs/box.md)."""
+
+
+def memory_group(name: str) -> tuple[Path, str]:
+    """The box's memory cgroup (cgroup v1's memory controller, as on this machine, or v2's) and its
+    limit's file. BoxError in one line when this machine has neither."""
+    v1, v2 = Path("/sys/fs/cgroup/memory"), Path("/sys/fs/cgroup")
+    if (v1 / "cgroup.procs").exists():
+        return v1 / f"icefloe-box-{name}", "memory.limit_in_bytes"
+    if (v2 / "cgroup.controllers").exists() and "memory" in (v2 / "cgroup.controllers").read_text().split():
+        return v2 / f"icefloe-box-{name}", "memory.max"
+    raise BoxError("this machine has no memory cgroup controller to limit the box with (--memory 0 boots "
+                   "it without a limit)")
+
+
+def memory_cgroup(name: str, mib: int) -> Path:
+    """The box's memory cgroup, made with a limit of ``mib`` MiB; its ``cgroup.procs``."""
+    group, limit_file = memory_group(name)
+    try:
+        if limit_file == "memory.max":
+            with contextlib.suppress(OSError):
+                (group.parent / "cgroup.subtree_control").write_text("+memory")
+        group.mkdir(exist_ok=True)
+        (group / limit_file).write_text(str(mib << 20))
+    except OSError as exc:
+        raise BoxError(f"cannot limit the box's memory to {mib} MiB in {group}: {exc} (--memory 0 boots it "
+                       "without a limit)") from None
+    return group / "cgroup.procs"
+
+
+def box_cgroup(state: State) -> Path | None:
+    """The ``cgroup.procs`` of the running box's memory limit, if it has one: what runs in the box from
+    outside (`inside`: the install, a student's programs) joins it, as the box's own processes are in it."""
+    if not state.read().get("memory"):
+        return None
+    procs = memory_group(state.read().get("name", ""))[0] / "cgroup.procs"
+    return procs if procs.exists() else None
+
+
+BOARD_NICE = -10
+"""The supervisor's (the board's) nice value on this machine; the box runs at 0."""
+BOARD_PRIORITY = 50
+"""The supervisor's (the board's) SCHED_FIFO priority on this machine, where it may; the box runs SCHED_OTHER.
+Above the box's hwbridge unit (40): the board answers the cycle as a chip would."""
+
+
+def in_cgroup(procs: Path | None, command: list[str]) -> list[str]:
+    """``command`` at SCHED_OTHER and nice 0 (the supervisor runs at `BOARD_PRIORITY`, `BOARD_NICE`), in
+    the cgroup whose ``cgroup.procs`` is ``procs`` if one is given (before it runs: its every child is
+    then in it too)."""
+    join = f"echo $$ > {shlex.quote(str(procs))} && " if procs is not None else ""
+    back = -os.getpriority(os.PRIO_PROCESS, 0)
+    return ["sh", "-c", f'{join}exec chrt --other 0 nice -n {back} "$@"', "sh", *command]
+
 
 def nspawn_command(state: State, cache: Path, name: str) -> list[str]:
     return ["systemd-nspawn", "--register=no", "--keep-unit", "--boot", f"--machine={name}",
@@ -412,6 +480,14 @@ class Supervisor:
         self.boots = 0
 
     def serve(self) -> int:
+        # The board is a chip of its own on a robot: here it shares the CPUs with the box (and with a
+        # test suite beside it), so it runs ahead of them, real time where this machine allows it (a
+        # student's busy loops would otherwise slow the simulated firmware down, which no real board
+        # suffers); the box itself is put back to the normal policy and nice 0 (`in_cgroup`).
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, 0, BOARD_NICE)
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BOARD_PRIORITY))
         with contextlib.suppress(FileNotFoundError):
             self.state.sock.unlink()
         server = socket.socket(socket.AF_UNIX)
@@ -436,7 +512,9 @@ class Supervisor:
 
     def _boot_once(self) -> int:
         with self.state.console.open("ab") as console:
-            self.nspawn = subprocess.Popen(nspawn_command(self.state, self.cache, self.name),
+            mib = self.state.read().get("memory", 0)
+            procs = memory_cgroup(self.name, mib) if mib else None
+            self.nspawn = subprocess.Popen(in_cgroup(procs, nspawn_command(self.state, self.cache, self.name)),
                                            stdin=subprocess.DEVNULL, stdout=console, stderr=console)
             try:
                 leader = container_init(self.nspawn.pid, 60 * slower(self.state))
@@ -479,7 +557,8 @@ class Supervisor:
                     conn.sendall(reply.encode() + b"\n")
 
     def handle(self, words: list[str]) -> str:
-        """``pose`` (x y theta, m and rad: the simulator's truth), ``unplug``, ``plug``, ``stop``."""
+        """``pose`` (x y theta, m and rad: the simulator's truth), ``unplug``, ``plug``, ``stopped``
+        (since when both wheels' duty is zero), ``stop`` (the box)."""
         match words:
             case ["pose"]:
                 return self.board.pose()
@@ -488,10 +567,12 @@ class Supervisor:
                 return "unplugged"
             case ["plug"]:
                 return "plugged " + self.board.plug(self.state.read()["leader"])
+            case ["stopped"]:
+                return self.board.stopped()
             case ["stop"]:
                 self.stop()
                 return "stopping"
-        return f"error unknown request {' '.join(words)!r}: pose, unplug, plug, stop"
+        return f"error unknown request {' '.join(words)!r}: pose, unplug, plug, stopped, stop"
 
 
 # ---------------------------------------------------------------------------------------- commands
@@ -511,6 +592,8 @@ def inside(state: State, command: str, user: str = "root", check: bool = False,
     login = ["runuser", "-l", user, "-c", command] if user != "root" else ["bash", "-lc", command]
     argv = ["nsenter", f"--target={leader}", "--mount", "--uts", "--ipc", "--pid", "--",
             "env", "-i", f"PATH={PATH}", "LANG=C.UTF-8", "TERM=dumb", *login]
+    if (procs := box_cgroup(state)) is not None:
+        argv = ["sh", "-c", f'echo $$ > {shlex.quote(str(procs))} && exec "$@"', "sh", *argv]
     result = subprocess.run(argv, text=True, capture_output=capture, timeout=timeout, check=False)
     if check and result.returncode != 0:
         detail = f": {(result.stderr or result.stdout).strip()[-2000:]}" if capture else ""
@@ -608,6 +691,7 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
     if r.returncode != 0:
         raise BoxError(f"cannot bundle {args.repo} at {args.rev}: {r.stderr.strip()}")
     state.write(name=args.name, cache=str(args.cache), arch=args.arch, robot=args.robot, running=False,
+                memory=args.memory,
                 rev=subprocess.run(["git", "-C", str(args.repo), "rev-parse", args.rev],
                                    capture_output=True, text=True).stdout.strip())
     start = time.monotonic()
@@ -683,6 +767,9 @@ def cmd_down(state: State) -> int:
             raise BoxError(f"the box did not power off within {60 * slower(state):.0f} s: see {state.console}")
     if os.path.ismount(state.root):
         subprocess.run(["umount", str(state.root)], check=False)
+    if info.get("memory"):
+        with contextlib.suppress(OSError, BoxError):  # empty once the box is off
+            memory_group(info.get("name", ""))[0].rmdir()
     shutil.rmtree(state.dir, ignore_errors=True)
     say(f"box in {state.dir} powered off and removed")
     return 0
@@ -718,6 +805,9 @@ def main(argv: list[str] | None = None) -> int:
     up.add_argument("--rev", default="HEAD", help="its commit to clone (default HEAD: committed work only)")
     up.add_argument("--robot", default="penguin1", help="the robot config to install (default penguin1)")
     up.add_argument("--no-install", action="store_true", help="stop after making pi and cloning the repository")
+    up.add_argument("--memory", type=int, default=PI3B_MEMORY_MIB, metavar="MIB",
+                    help=f"the box's memory limit, MiB (default {PI3B_MEMORY_MIB}: what a Raspberry Pi 3B has; "
+                         "0: none)")
     sub.add_parser("build", help="make the cached root and the wheelhouse (if missing)").add_argument(
         "--rebuild", action="store_true", help="make the root again even if it exists")
     inst = sub.add_parser("install", help="run the install as pi again")
@@ -726,8 +816,10 @@ def main(argv: list[str] | None = None) -> int:
     ex.add_argument("--user", default="root", help="as this user, in a login shell (default root)")
     ex.add_argument("cmd", nargs=argparse.REMAINDER, help="the command (after --)")
     bd = sub.add_parser("board", help="the board outside the box")
-    bd.add_argument("action", choices=["pose", "unplug", "plug"],
-                    help="pose: the simulator's truth (x y theta, m, rad); unplug/plug the serial line")
+    bd.add_argument("action", choices=["pose", "unplug", "plug", "stopped"],
+                    help="pose: the simulator's truth (x y theta, m, rad); unplug/plug the serial line; "
+                         "stopped: since when both wheels' duty is zero (this machine's monotonic clock, s) or "
+                         "'moving'")
     sub.add_parser("reboot", help="reboot the box (systemctl reboot inside) and wait until it is up")
     sub.add_parser("down", help="power the box off and throw its copy away")
     sub.add_parser("serve", help=argparse.SUPPRESS)
