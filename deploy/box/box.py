@@ -428,18 +428,14 @@ def box_cgroup(state: State) -> Path | None:
 
 BOARD_NICE = -10
 """The supervisor's (the board's) nice value on this machine; the box runs at 0."""
-BOARD_PRIORITY = 50
-"""The supervisor's (the board's) SCHED_FIFO priority on this machine, where it may; the box runs SCHED_OTHER.
-Above the box's hwbridge unit (40): the board answers the cycle as a chip would."""
 
 
 def in_cgroup(procs: Path | None, command: list[str]) -> list[str]:
-    """``command`` at SCHED_OTHER and nice 0 (the supervisor runs at `BOARD_PRIORITY`, `BOARD_NICE`), in
-    the cgroup whose ``cgroup.procs`` is ``procs`` if one is given (before it runs: its every child is
-    then in it too)."""
+    """``command`` at nice 0 (the supervisor runs at `BOARD_NICE`), started inside the cgroup whose
+    ``cgroup.procs`` is ``procs`` if one is given (before it runs: its every child is then in it too)."""
     join = f"echo $$ > {shlex.quote(str(procs))} && " if procs is not None else ""
     back = -os.getpriority(os.PRIO_PROCESS, 0)
-    return ["sh", "-c", f'{join}exec chrt --other 0 nice -n {back} "$@"', "sh", *command]
+    return ["sh", "-c", f'{join}exec nice -n {back} "$@"', "sh", *command]
 
 
 def nspawn_command(state: State, cache: Path, name: str) -> list[str]:
@@ -480,14 +476,11 @@ class Supervisor:
         self.boots = 0
 
     def serve(self) -> int:
-        # The board is a chip of its own on a robot: here it shares the CPUs with the box (and with a
-        # test suite beside it), so it runs ahead of them, real time where this machine allows it (a
-        # student's busy loops would otherwise slow the simulated firmware down, which no real board
-        # suffers); the box itself is put back to the normal policy and nice 0 (`in_cgroup`).
+        # The board is a chip of its own on a robot: here it shares the CPUs with the box, so it runs
+        # ahead of the box's programs (a student's busy loops would slow the simulated firmware down,
+        # which no real board suffers); the box itself is put back to nice 0 (`in_cgroup`).
         with contextlib.suppress(OSError):
             os.setpriority(os.PRIO_PROCESS, 0, BOARD_NICE)
-        with contextlib.suppress(OSError):
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BOARD_PRIORITY))
         with contextlib.suppress(FileNotFoundError):
             self.state.sock.unlink()
         server = socket.socket(socket.AF_UNIX)
