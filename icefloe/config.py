@@ -134,11 +134,20 @@ class Hwbridge(Section):
 
 
 class Camera(Section):
+    """The robot's camera and what it costs (docs/camera.md, "What the camera costs"): detection's
+    CPU is about proportional to ``width`` x ``height`` x ``detection_rate_hz``."""
+
     source: str = "sim"
     """"sim", "picamera2", "v4l2:<index or path>", or a folder/video file to replay."""
-    width: Count = 640
-    height: Count = 480
-    fps: Hz = 15.0
+    width: Annotated[int, Meta(ge=64, le=4096)] = 640
+    """Frame width, pixels: what is captured and searched for markers (the simulator renders it)."""
+    height: Annotated[int, Meta(ge=48, le=4096)] = 480
+    """Frame height, pixels."""
+    fps: Annotated[float, Meta(gt=0, le=120)] = 15.0
+    """Frames captured a second (what ``camera/frames`` streams to a watcher)."""
+    detection_rate_hz: Annotated[float, Meta(ge=0, le=120)] = 0.0
+    """Frames searched for markers a second, the camera's main cost (0 = every captured frame;
+    at most ``fps``). The PenguinPi's Raspberry Pi 3B: deploy/robots/penguin1.toml."""
     image_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 2.0
     """Rate of ``camera/image`` on the bus (Wi-Fi is shared by a class)."""
     image_width: Count = 320
@@ -158,6 +167,20 @@ class Camera(Section):
     """Camera height above the floor, m."""
     mount_yaw: float = 0.0
     """Camera heading relative to the robot's, rad."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.detection_rate_hz > self.fps:
+            raise ValueError(f"detection_rate_hz ({self.detection_rate_hz:g}) must be at most fps ({self.fps:g}): "
+                             "detection cannot search frames that were never captured")
+        if self.image_width > self.width or self.image_height > self.height:
+            raise ValueError(f"image_width x image_height ({self.image_width}x{self.image_height}) must fit in "
+                             f"width x height ({self.width}x{self.height}): the images are the frames made smaller")
+
+    @property
+    def detection_hz(self) -> float:
+        """Frames searched for markers a second: ``detection_rate_hz``, or ``fps`` when that is 0."""
+        return self.detection_rate_hz or self.fps
 
 
 class Extloc(Section):
