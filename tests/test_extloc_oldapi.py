@@ -1,0 +1,203 @@
+"""The old PenguinPi localiser's API as its clients read it (services/extloc/oldapi.py, oldsquare.py).
+
+The course's own client, unchanged (tests/upstream/penguinpi_robot/pibot_client.py), reads the
+lab localizer's HTTP API served in this process: a robot's pose in the old square's frame and in
+degrees, ``0, 0, 0`` for a robot not seen lately and for a group that is no robot (the client must
+not raise), the old square's picture; hostile query strings get a 200 with zeros and a reason, one
+log line per group, and the service keeps serving. The pictures come from the simulated overhead
+camera. No processes; about 5 s (tests/test_extloc_overhead_lab.py runs the same client against the
+real service in a simulated lab).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+
+import aiohttp
+import cv2
+import numpy as np
+import pytest
+from conftest import free_port
+from course_clients import localiser_client
+
+from icefloe.config import Overhead
+from icefloe.schemas import messages as m
+from icefloe.services.extloc import locate, oldapi, oldsquare
+from icefloe.services.extloc.oldsquare import OldSquare
+from icefloe.sim.overhead import OverheadRenderer, RobotView
+from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.overhead import CameraPose, flat_square_corners
+from icefloe.worldmap import load_world
+
+DICTIONARY = "DICT_4X4_100"
+
+
+def test_old_square_frame_and_units() -> None:
+    """World poses → metres from the square's corner along its sides, and degrees CCW from its +x,
+    in (-180, 180]; the default square is the lab world's clear one, x and y in [-0.5, 1.5] m."""
+    square = OldSquare.from_config(Overhead())
+    assert square == OldSquare(-0.5, -0.5, 0.0)
+    assert square.pose(-0.5, -0.5, 0.0) == (0.0, 0.0, 0.0)
+    x, y, theta = square.pose(0.0, 0.0, math.pi / 2)  # the lab's start pose, turned left
+    assert (x, y) == (0.5, 0.5) and theta == pytest.approx(90.0)
+    assert square.pose(1.5, 1.5, math.pi)[2] == pytest.approx(180.0)
+    assert square.pose(1.5, 1.5, -math.pi)[2] == pytest.approx(180.0)  # never -180
+    assert square.pose(1.0, 0.0, -0.25)[2] == pytest.approx(math.degrees(-0.25))
+    turned = OldSquare(2.7, -1.0, math.pi / 2)  # corner at the world's (2.7, -1), its +x along the world's +y
+    x, y, theta = turned.pose(2.7, 0.0, 0.0)
+    assert (x, y, theta) == pytest.approx((1.0, 0.0, -90.0))
+    x, y, _ = turned.pose(1.7, 0.0, 0.0)
+    assert (x, y) == pytest.approx((1.0, 1.0))
+    assert turned.world(np.array([[1.0, 1.0]])) == pytest.approx(np.array([[1.7, 0.0, 0.0]]))
+
+
+def test_default_old_square_is_the_lab_worlds_clear_square() -> None:
+    """The default square (x, y in [-0.5, 1.5] m) holds no obstacle and no floor marker of the lab world,
+    and the robots' start pose (the origin) is inside it: course code that drives to a point of the
+    old square drives on clear floor."""
+    world = load_world("lab")
+    square = OldSquare.from_config(Overhead())
+    grid = np.linspace(0.0, oldsquare.SIDE_M, 41)  # every 5 cm
+    points = square.world(np.array([[x, y] for x in grid for y in grid]))
+    assert min(world.clearance(x, y) for x, y, _ in points) > 0.05
+    for marker in world.floor_markers:  # a marker's whole square, its corners 0.71 of its side from its centre
+        x, y, _ = square.pose(marker.x, marker.y, 0.0)
+        reach = marker.size * 0.71
+        assert not (-reach < x < oldsquare.SIDE_M + reach and -reach < y < oldsquare.SIDE_M + reach), marker
+    x, y, _ = square.pose(0.0, 0.0, 0.0)
+    assert 0 < x < oldsquare.SIDE_M and 0 < y < oldsquare.SIDE_M
+
+
+@pytest.fixture(scope="module")
+def overhead() -> tuple[Intrinsics, CameraPose, OverheadRenderer]:
+    intrinsics = Intrinsics.nominal(410.0, 1280, 720)
+    camera = CameraPose.looking_down(0.03, -0.02, 2.5, yaw=0.01, tilt=0.02)  # hung a little off
+    return intrinsics, camera, OverheadRenderer(load_world("lab"), intrinsics, camera, DICTIONARY, noise=0.0)
+
+
+@pytest.mark.parametrize("square", [OldSquare(0.7, -1.0, 0.0), OldSquare(2.7, -1.0, math.pi / 2)])
+def test_old_picture_shows_the_square_from_above_with_its_y_up(overhead, square: OldSquare) -> None:
+    """The floor marker 81 (world (1.7, 0), 20 cm, its top edge towards the world's +x) lies at the
+    middle of both squares: in their pictures, its corners are where the old frame puts them, within
+    a pixel (4 mm); in the square turned by 90 degrees, turned by 90 degrees too (not mirrored)."""
+    intrinsics, camera, renderer = overhead
+    image = oldsquare.picture(renderer.render([]), oldsquare.picture_maps(square, intrinsics, camera), [])
+    assert image.shape == (500, 500) and image.dtype == np.uint8
+    seen = locate.find_markers(locate.make_detector(DICTIONARY), cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    assert set(seen) == {81}
+    expected = []
+    for wx, wy, _ in flat_square_corners(1.7, 0.0, 0.0, 0.0, 0.1):
+        x, y, _ = square.pose(wx, wy, 0.0)
+        expected.append(oldsquare.to_picture(x, y))
+    assert np.abs(seen[81] - np.array(expected)).max() < 1.0, (seen[81], expected)
+
+
+class Lines(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__()
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(record.getMessage())
+
+
+def pose(x: float, y: float, theta: float) -> m.ExternalPose:
+    return m.ExternalPose(stamp=1, x=x, y=y, theta=theta, covariance=[0.0] * 9)
+
+
+async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_queries(overhead) -> None:
+    """Group 1 seen (its pose in the old square's frame, degrees), group 2 seen 5 s ago (no stale
+    pose), group 5 never seen, group 7 no robot, and the client's own default group (None): the
+    client returns numbers for each and never raises; then query strings a student might send."""
+    intrinsics, camera, renderer = overhead
+    lines = Lines()
+    log = logging.getLogger("test-extloc-oldapi")
+    log.addHandler(lines)
+    square = OldSquare(0.7, -1.0, 0.0)  # holds the floor marker 81 and robot a
+    ov = Overhead(old_square_x=square.x, old_square_y=square.y, old_square_yaw=square.yaw, image_rate_hz=2.0)
+    seen = oldapi.Seen()
+    seen.poses["a"] = (time.monotonic() + 3600, pose(1.2, 0.4, 2.0))  # fresh for the whole test
+    seen.poses["b"] = (time.monotonic() - 5.0, pose(3.0, 0.0, 0.0))
+    api = oldapi.OldApi(ov, {1: "a", 2: "b", 5: "c"}, seen, log)
+    port = free_port()
+    await api.start("127.0.0.1", port)
+    try:
+        bot = localiser_client("127.0.0.1", port)
+        x, y, theta = await asyncio.to_thread(bot.getLocalizerPose, 1)
+        assert (x, y) == pytest.approx((0.5, 1.4)) and theta == pytest.approx(math.degrees(2.0))
+        for group in (2, 5, 7, None):
+            assert await asyncio.to_thread(bot.getLocalizerPose, group) == (0.0, 0.0, 0.0), group
+        assert any("group=2: robot b not seen" in line for line in lines.lines), lines.lines
+        assert any("group=5: robot c not seen" in line for line in lines.lines), lines.lines
+        assert any("group=7: no robot has group 7 (groups: 1, 2, 5)" in line for line in lines.lines), lines.lines
+
+        async with aiohttp.ClientSession(f"http://127.0.0.1:{port}") as http:
+            async def get(path: str) -> tuple[int, dict]:
+                async with http.get(path) as r:
+                    return r.status, await r.json()
+
+            hostile = {"group=abc": "'abc'", "group=-1": "'-1'", "group=0": "'0'", "group=1.5": "'1.5'",
+                       "group=%00": "'\\x00'", "group=" + "9" * 5000: "'9999", "group=99999999999999999999": "'9999",
+                       "group=%D9%A1": "'\u0661'", "group=": "''", "": "without ?group=N", "grp=1": "without ?group=N"}
+            for query, named in hostile.items():
+                status, answer = await get(f"/pose/get?{query}")
+                assert status == 200 and answer["pose"] == {"x": 0, "y": 0, "theta": 0}, (query, answer)
+                assert named in answer["error"] and len(answer["error"]) < 120, (query, answer)
+            # Leading zeros are still group 1; a second group= is not read.
+            assert (await get("/pose/get?group=" + "0" * 5000 + "1"))[1]["pose"]["x"] == pytest.approx(0.5)
+            assert (await get("/pose/get?group=1&group=7"))[1]["pose"]["x"] == pytest.approx(0.5)
+            # A flood of unknown groups and bad queries: answered, and a few log lines, not a thousand.
+            before = len(lines.lines)
+            answers = await asyncio.gather(*(get(f"/pose/get?group={q}") for q in [7, "x", 8, 9] * 250))
+            assert all(status == 200 for status, _ in answers)
+            said = [line for line in lines.lines[before:] if "answered 0, 0, 0" in line]
+            assert len(said) <= 2, said  # groups 8 and 9; 7 and the bad query were named already
+            x, _, _ = await asyncio.to_thread(bot.getLocalizerPose, 1)  # still serving
+            assert x == pytest.approx(0.5)
+
+            # The picture: none before the first frame (the client gets None, no exception), then
+            # the old square's, grey, 500 x 500, as a PNG, however many ask (bounded work).
+            assert await asyncio.to_thread(bot.getLocalizerImage) is None
+            status, answer = await get("/camera/get")
+            assert status == 503 and "no frame yet" in answer["error"]
+            seen.frame = (time.time_ns(), renderer.render([RobotView(20, 0.16, 0.12, 1.2, 0.4, 2.0)]))
+            status, answer = await get("/camera/get")
+            assert status == 503 and "pose is not known yet" in answer["error"]
+            seen.camera = (intrinsics, camera)
+            encoded = 0
+            real_imencode = oldapi.cv2.imencode
+
+            def counting(*args: object) -> object:
+                nonlocal encoded
+                encoded += 1
+                return real_imencode(*args)
+
+            oldapi.cv2.imencode = counting
+            try:
+                start = time.monotonic()
+                bodies = []
+                for path in ["/camera/get"] * 40 + ["/camera/frame"] * 10:
+                    async with http.get(path) as r:
+                        assert r.status == 200
+                        bodies.append((r.content_type, await r.read()))
+                elapsed = time.monotonic() - start
+            finally:
+                oldapi.cv2.imencode = real_imencode
+            assert all(body[:8] == b"\x89PNG\r\n\x1a\n" for kind, body in bodies[:40] if kind == "image/png")
+            assert all(kind == "image/jpeg" and body[:2] == b"\xff\xd8" for kind, body in bodies[40:])
+            assert encoded <= 2 * (1 + math.ceil(elapsed * 2.0)), (encoded, elapsed)  # not 50
+            png = cv2.imdecode(np.frombuffer(bodies[0][1], np.uint8), cv2.IMREAD_UNCHANGED)
+            assert png.shape == (500, 500)  # grey, as the old localiser's
+        picture = await asyncio.to_thread(bot.getLocalizerImage)
+        assert picture.shape == (500, 500, 3)
+        # Robot a's arrow: white from its old position along its heading, up the picture for +y.
+        col, row = oldsquare.to_picture(0.5, 1.4)
+        for along in (10, 20, 30):
+            tip = (round(row - along * math.sin(2.0)), round(col + along * math.cos(2.0)))
+            assert picture[tip].min() > 200, (along, picture[tip])
+    finally:
+        log.removeHandler(lines)
+        await api.stop()
