@@ -121,7 +121,7 @@ async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_qu
     seen = oldapi.Seen()
     seen.poses["a"] = (time.monotonic() + 3600, pose(1.2, 0.4, 2.0))  # fresh for the whole test
     seen.poses["b"] = (time.monotonic() - 5.0, pose(3.0, 0.0, 0.0))
-    api = oldapi.OldApi(ov, {1: "a", 2: "b", 5: "c"}, seen, log)
+    api = oldapi.OldApi(ov, {1: "a", 2: "b", 5: "c"}, seen, log, {"a": 0.12})
     port = free_port()
     await api.start("127.0.0.1", port)
     try:
@@ -193,8 +193,14 @@ async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_qu
             assert png.shape == (500, 500)  # grey, as the old localiser's
         picture = await asyncio.to_thread(bot.getLocalizerImage)
         assert picture.shape == (500, 500, 3)
-        # Robot a's arrow: white from its old position along its heading, up the picture for +y.
-        col, row = oldsquare.to_picture(0.5, 1.4)
+        # Robot a's arrow: white along its heading (up the picture for +y), from where its top marker
+        # (12 cm up, 1.24 m from below the lens) shows in the picture: 6.3 cm (16 px) outward of its pose.
+        x, y = oldsquare.seen_on_floor(camera, 1.2, 0.4, 0.12)
+        assert math.hypot(x - 1.2, y - 0.4) == pytest.approx(0.063, abs=0.002)
+        top = locate.find_markers(locate.make_detector(DICTIONARY), cv2.cvtColor(oldsquare.picture(
+            seen.frame[1], oldsquare.picture_maps(square, intrinsics, camera), []), cv2.COLOR_GRAY2BGR))[20]
+        col, row = oldsquare.to_picture(*square.pose(x, y, 0.0)[:2])
+        assert np.hypot(*(top.mean(axis=0) - (col, row))) < 1.0, (top, col, row)
         for along in (10, 20, 30):
             tip = (round(row - along * math.sin(2.0)), round(col + along * math.cos(2.0)))
             assert picture[tip].min() > 200, (along, picture[tip])

@@ -60,7 +60,7 @@ async def main(config: RobotConfig) -> None:
         capture = Capture("overhead camera", ov.source, opener, ov.width, ov.height, log=node.log,
                           limited=node.limited, thread_name="extloc-capture")
         capture.start()
-        api = OldApi(ov, tracker.group_of, seen, node.log)
+        api = OldApi(ov, tracker.group_of, seen, node.log, {top.robot: top.height for top in tracker.tops.values()})
         if ov.http_port:
             await api.start(ov.http_host, ov.http_port)
             node.log.info("old localiser API on http://%s:%d (/pose/get?group=N, /camera/get; /camera/frame), its "

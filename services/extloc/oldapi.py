@@ -25,7 +25,7 @@ import asyncio
 import json
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import cv2
 import numpy as np
@@ -99,8 +99,11 @@ class Picture:
 
 
 class OldApi:
-    def __init__(self, overhead: Overhead, group_of: dict[int, str], seen: Seen, log: logging.Logger) -> None:
+    def __init__(self, overhead: Overhead, group_of: dict[int, str], seen: Seen, log: logging.Logger,
+                 heights: Mapping[str, float] | None = None) -> None:
+        """``heights``: each robot's top marker above the floor, m (where its arrow goes in the picture)."""
         self.group_of, self.seen = group_of, seen
+        self.heights = dict(heights or {})
         self.group_by_robot = {robot: group for group, robot in group_of.items()}
         self.square = OldSquare.from_config(overhead)
         self.limited = LimitedLog(log, burst=1, limit=10, period=LOG_PERIOD_S)
@@ -182,7 +185,8 @@ class OldApi:
         for robot, group in sorted(self.group_by_robot.items(), key=lambda item: item[1]):
             pose = self.fresh(robot)
             if pose is not None:
-                robots.append((str(group), self.square.pose(pose.x, pose.y, pose.theta)))
+                x, y = oldsquare.seen_on_floor(camera[1], pose.x, pose.y, self.heights.get(robot, 0.0))
+                robots.append((str(group), self.square.pose(x, y, pose.theta)))
         ok, data = cv2.imencode(".png", oldsquare.picture(frame[1], self._maps[1], robots))
         return data.tobytes() if ok else "PNG encoding failed"
 

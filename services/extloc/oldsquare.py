@@ -74,6 +74,15 @@ def to_picture(old_x: float, old_y: float) -> tuple[float, float]:
     return old_x * PX_PER_M - 0.5, SIDE_PX - old_y * PX_PER_M - 0.5
 
 
+def seen_on_floor(camera: CameraPose, x: float, y: float, height: float) -> tuple[float, float]:
+    """Where a point ``height`` m above the floor at world (x, y) appears in a picture of the floor:
+    where the ray from the lens through it meets the floor (outward of it, the more so the further
+    it is from below the lens). A robot's arrow is drawn there, on its top marker."""
+    lens = camera.lens
+    scale = lens[2] / (lens[2] - height)
+    return float(lens[0] + (x - lens[0]) * scale), float(lens[1] + (y - lens[1]) * scale)
+
+
 def picture_maps(square: OldSquare, intrinsics: Intrinsics, camera: CameraPose) -> tuple[np.ndarray, np.ndarray]:
     """For `cv2.remap`: the overhead frame's pixel that each pixel of the old picture sees on the
     floor (the lens's distortion included). Computed once per camera pose: 250 000 points, 0.6 s
