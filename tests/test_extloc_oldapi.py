@@ -4,9 +4,9 @@ The course's own client, unchanged (tests/upstream/penguinpi_robot/pibot_client.
 lab localizer's HTTP API served in this process: a robot's pose in the old square's frame and in
 degrees, ``0, 0, 0`` for a robot not seen lately and for a group that is no robot (the client must
 not raise), the old square's picture; hostile query strings get a 200 with zeros and a reason, one
-log line per group, and the service keeps serving. The pictures come from the simulated overhead
-camera. No processes; about 5 s (tests/test_extloc_overhead_lab.py runs the same client against the
-real service in a simulated lab).
+log line per group, and the service keeps serving through floods and stalled connections. The
+pictures come from the simulated overhead camera. No processes; 3-6 s
+(tests/test_extloc_overhead_lab.py runs the same client against the real service in a simulated lab).
 """
 
 from __future__ import annotations
@@ -52,6 +52,20 @@ def test_old_square_frame_and_units() -> None:
     x, y, _ = turned.pose(1.7, 0.0, 0.0)
     assert (x, y) == pytest.approx((1.0, 1.0))
     assert turned.world(np.array([[1.0, 1.0]])) == pytest.approx(np.array([[1.7, 0.0, 0.0]]))
+
+
+def test_old_square_config_is_checked_and_named() -> None:
+    """A square placed nowhere (NaN, infinite, far away) or turned by a number that is no angle in
+    radians (degrees by mistake) is refused, naming the key, before anything starts."""
+    from icefloe import config as config_mod
+    from icefloe.errors import ConfigError
+
+    for key, value, message in [("old_square_x", float("nan"), ">= -1000"), ("old_square_y", float("inf"), "<= 1000"),
+                                ("old_square_x", 5000.0, "<= 1000"), ("old_square_yaw", 90.0, "<= 6.28"),
+                                ("old_square_yaw", "east", "Expected `float`")]:
+        with pytest.raises(ConfigError, match=rf"^lab\.toml: overhead\.{key}: .*{message}"):
+            config_mod.parse({"overhead": {key: value}}, "lab.toml")
+    assert config_mod.parse({"overhead": {"old_square_yaw": -1.5}}, "lab.toml").overhead.old_square_yaw == -1.5
 
 
 def test_default_old_square_is_the_lab_worlds_clear_square() -> None:
@@ -155,8 +169,15 @@ async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_qu
             assert all(status == 200 for status, _ in answers)
             said = [line for line in lines.lines[before:] if "answered 0, 0, 0" in line]
             assert len(said) <= 2, said  # groups 8 and 9; 7 and the bad query were named already
-            x, _, _ = await asyncio.to_thread(bot.getLocalizerPose, 1)  # still serving
+            # Ten connections that stall halfway through their request line hold up nobody.
+            stalled = [await asyncio.open_connection("127.0.0.1", port) for _ in range(10)]
+            for _, writer in stalled:
+                writer.write(b"GET /pose/get?gro")
+                await writer.drain()
+            x, _, _ = await asyncio.to_thread(bot.getLocalizerPose, 1)  # still serving, within its 1 s timeout
             assert x == pytest.approx(0.5)
+            for _, writer in stalled:
+                writer.close()
 
             # The picture: none before the first frame (the client gets None, no exception), then
             # the old square's, grey, 500 x 500, as a PNG, however many ask (bounded work).
@@ -166,7 +187,7 @@ async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_qu
             seen.frame = (time.time_ns(), renderer.render([RobotView(20, 0.16, 0.12, 1.2, 0.4, 2.0)]))
             status, answer = await get("/camera/get")
             assert status == 503 and "pose is not known yet" in answer["error"]
-            seen.camera = (intrinsics, camera)
+            api.camera_known(intrinsics, camera)
             encoded = 0
             real_imencode = oldapi.cv2.imencode
 

@@ -71,8 +71,8 @@ async def main(config: RobotConfig) -> None:
             async for frame in capture.frames("extloc: %d frames captured, %d located, %d dropped (behind the camera)"):
                 seen.frame = frame
                 located = await asyncio.to_thread(tracker.on_frame, *frame)
-                if seen.camera is None and tracker.locator is not None:  # known from now on
-                    seen.camera = (tracker.intrinsics, tracker.locator.pose)
+                if ov.http_port and seen.camera is None and tracker.locator is not None:  # known from now on
+                    api.camera_known(tracker.intrinsics, tracker.locator.pose)
                 for robot, pose in located:
                     poses[robot].put(pose)
                     seen.poses[robot] = (time.monotonic(), pose)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import threading
 import time
 from collections.abc import Callable, Mapping
 
@@ -111,6 +112,8 @@ class OldApi:
         self.old_picture = Picture(period, "image/png", self._old_png)
         self.frame_picture = Picture(period, "image/jpeg", self._frame_jpeg)
         self._maps: tuple[tuple[Intrinsics, CameraPose], tuple[np.ndarray, np.ndarray]] | None = None
+        self._maps_lock = threading.Lock()
+        self._background: set[asyncio.Task] = set()
         self.app = web.Application()
         self.app.router.add_get("/pose/get", self.pose)
         self.app.router.add_get("/camera/get", self.camera)
@@ -172,6 +175,21 @@ class OldApi:
     async def frame(self, _request: web.Request) -> web.Response:
         return await self.frame_picture.response()
 
+    def camera_known(self, intrinsics: Intrinsics, pose: CameraPose) -> None:
+        """The overhead camera's lens and pose, once known (on the loop). The picture's maps are made
+        now, on a worker thread (0.6 s), not by the first ``/camera/get``, which pibot_client gives 1 s."""
+        self.seen.camera = (intrinsics, pose)
+        task = asyncio.get_running_loop().create_task(asyncio.to_thread(self._picture_maps, self.seen.camera))
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+
+    def _picture_maps(self, camera: tuple[Intrinsics, CameraPose]) -> tuple[np.ndarray, np.ndarray]:
+        """The old picture's maps for this camera, made once (worker threads)."""
+        with self._maps_lock:
+            if self._maps is None or self._maps[0] is not camera:
+                self._maps = (camera, oldsquare.picture_maps(self.square, *camera))
+            return self._maps[1]
+
     def _old_png(self) -> bytes | str:
         """The old localiser's picture of its square (worker thread)."""
         frame, camera = self.seen.frame, self.seen.camera
@@ -179,15 +197,14 @@ class OldApi:
             return "the overhead camera has delivered no frame yet"
         if camera is None:
             return "the overhead camera's pose is not known yet (no floor markers in view, no overhead.pose)"
-        if self._maps is None or self._maps[0] is not camera:
-            self._maps = (camera, oldsquare.picture_maps(self.square, *camera))
+        maps = self._picture_maps(camera)
         robots = []
         for robot, group in sorted(self.group_by_robot.items(), key=lambda item: item[1]):
             pose = self.fresh(robot)
             if pose is not None:
                 x, y = oldsquare.seen_on_floor(camera[1], pose.x, pose.y, self.heights.get(robot, 0.0))
                 robots.append((str(group), self.square.pose(x, y, pose.theta)))
-        ok, data = cv2.imencode(".png", oldsquare.picture(frame[1], self._maps[1], robots))
+        ok, data = cv2.imencode(".png", oldsquare.picture(frame[1], maps, robots))
         return data.tobytes() if ok else "PNG encoding failed"
 
     def _frame_jpeg(self) -> bytes | str:
