@@ -209,16 +209,17 @@ async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_qu
 
             oldapi.cv2.imencode = counting
             try:
-                start = time.monotonic()
-                bodies = []
-                for path in ["/camera/get"] * 40 + ["/camera/frame"] * 10:
+                async def picture(path: str) -> tuple[str, bytes]:
                     async with http.get(path) as r:
-                        assert r.status == 200
-                        bodies.append((r.content_type, await r.read()))
+                        assert r.status == 200, (path, await r.text())
+                        return r.content_type, await r.read()
+
+                start = time.monotonic()
+                bodies = await asyncio.gather(*(picture(p) for p in ["/camera/get"] * 40 + ["/camera/frame"] * 10))
                 elapsed = time.monotonic() - start
             finally:
                 oldapi.cv2.imencode = real_imencode
-            assert all(body[:8] == b"\x89PNG\r\n\x1a\n" for kind, body in bodies[:40] if kind == "image/png")
+            assert all(kind == "image/png" and body[:8] == b"\x89PNG\r\n\x1a\n" for kind, body in bodies[:40])
             assert all(kind == "image/jpeg" and body[:2] == b"\xff\xd8" for kind, body in bodies[40:])
             assert encoded <= 2 * (1 + math.ceil(elapsed * 2.0)), (encoded, elapsed)  # not 50
             png = cv2.imdecode(np.frombuffer(bodies[0][1], np.uint8), cv2.IMREAD_UNCHANGED)
