@@ -162,7 +162,11 @@ async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_qu
         async with aiohttp.ClientSession(f"http://127.0.0.1:{port}") as http:
             async def get(path: str) -> tuple[int, dict]:
                 async with http.get(path) as r:
-                    return r.status, await r.json()
+                    return r.status, await r.json(content_type=None)
+
+            # As the old Flask sent it: MATLAB's PiBot.m jsondecodes the text itself.
+            async with http.get("/pose/get?group=1") as r:
+                assert r.headers["Content-Type"] == "text/html; charset=utf-8"
 
             hostile = {"group=abc": "'abc'", "group=-1": "'-1'", "group=0": "'0'", "group=1.5": "'1.5'",
                        "group=%00": "'\\x00'", "group=" + "9" * 5000: "'9999", "group=99999999999999999999": "'9999",

@@ -7,13 +7,15 @@ The old localiser (qcr/PenguinPi-robot, ``software/python/localiser/localiser.py
 
 and the course's ``pibot_client`` reads them as ``getLocalizerPose(group)`` (``json.loads(resp.text)
 ["pose"]``: it catches only a timeout, so any other answer kills the student's program) and
-``getLocalizerImage()``. The old localiser tracked one robot and ignored ``group``; it answered
-``0, 0, 0`` when it saw no robot. Here group N is a robot (`tracker.groups`: ``extloc.group`` in the
-robot's config, else its place in ``overhead.robots``), its pose the last one published if the
-robot was seen in the last `FRESH_S` (no stale pose), turned into the old square's frame and units
-(`oldsquare.py`). Every other case, a robot not seen, a group that is no robot, a query that is no
-group at all, is answered as the old one did, 200 and ``0, 0, 0``, with an ``"error"`` beside the
-pose that says which case it was (the client ignores it) and one rate-limited log line naming the group.
+``getLocalizerImage()``; MATLAB's ``PiBot.m`` as ``jsondecode(webread(...))`` (so the JSON goes
+out as Flask sent it, ``text/html``) and ``webread`` of the PNG, always on port 8080. The old
+localiser tracked one robot and ignored ``group``; it answered ``0, 0, 0`` when it saw no robot.
+Here group N is a robot (`tracker.groups`: ``extloc.group`` in the robot's config, else its place
+in ``overhead.robots``), its pose the last one published if the robot was seen in the last
+`FRESH_S` (no stale pose), turned into the old square's frame and units (`oldsquare.py`). Every
+other case, a robot not seen, a group that is no robot, a query that is no group at all, is
+answered as the old one did, 200 and ``0, 0, 0``, with an ``"error"`` beside the pose that says
+which case it was (the client ignores it) and one rate-limited log line naming the group.
 
 Beyond the old API, ``GET /camera/frame`` is the newest whole overhead frame as a JPEG. Each
 picture is encoded at most ``overhead.image_rate_hz`` times a second, however often it is asked.
@@ -62,6 +64,13 @@ class Seen:
 
 def _json(status: int, body: dict) -> web.Response:
     return web.Response(status=status, text=json.dumps(body), content_type="application/json")
+
+
+def _as_flask(body: dict) -> web.Response:
+    """JSON text as the old localiser's Flask sent a ``str``: 200, text/html; charset=utf-8. MATLAB's
+    PiBot.m decodes it itself (``jsondecode(webread(...))``); ``webread`` would decode an
+    ``application/json`` body first, and PiBot's ``jsondecode`` of the result would fail."""
+    return web.Response(text=json.dumps(body), content_type="text/html", charset="utf-8")
 
 
 NOT_SEEN = {"x": 0, "y": 0, "theta": 0}
@@ -167,7 +176,7 @@ class OldApi:
         if problem is not None:
             self.limited.warning(kind, "%s: answered 0, 0, 0, as the old localiser did", problem)
             body = {**body, "error": problem}
-        return _json(200, body)
+        return _as_flask(body)
 
     async def camera(self, _request: web.Request) -> web.Response:
         return await self.old_picture.response()
