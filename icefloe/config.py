@@ -227,7 +227,15 @@ class Overhead(Section):
     """The old localiser's HTTP API (``/pose/get``, ``/camera/get``); 0 = none."""
     http_host: str = "0.0.0.0"
     image_rate_hz: Annotated[float, Meta(ge=0, le=100)] = 2.0
-    """How often the picture for ``/camera/get`` is encoded (JPEG), Hz."""
+    """How often the pictures of ``/camera/get`` and ``/camera/frame`` are encoded, Hz."""
+    old_square_x: Annotated[float, Meta(ge=-1000, le=1000)] = -0.5
+    """Where the old localiser's 2 m square lies in the world: its corner (the old API's x, y = 0, 0),
+    world frame, m. The default puts it on the lab world's clear 2 m square, x and y in [-0.5, 1.5] m
+    (docs/extloc.md)."""
+    old_square_y: Annotated[float, Meta(ge=-1000, le=1000)] = -0.5
+    old_square_yaw: Annotated[float, Meta(ge=-math.tau, le=math.tau)] = 0.0
+    """Direction of the old square's +x axis in the world, rad CCW from the world's +x (its +y is
+    90 degrees CCW from that: the old frame is right-handed, as seen from above)."""
     sim_x: float = 0.0
     """The simulated camera's lens, world frame, m."""
     sim_y: float = 0.0
