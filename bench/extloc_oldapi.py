@@ -4,7 +4,7 @@
 
 The lab localizer's old API (``services/extloc/oldapi.py``) served on loopback from a thread of
 this process, with a robot seen and the simulated overhead camera's frame (1280x720, its pose
-known), read by the course's own ``pibot_client`` (tests/upstream, unchanged), one request at a
+known), read by the course's own ``pibot_client`` (unchanged: tests/course_clients.py), one request at a
 time: ``getLocalizerPose(1)`` (a robot seen), ``getLocalizerPose(7)`` (no robot: zeros and a log
 line) and ``getLocalizerImage()`` with a new picture every request (``image_rate_hz = 0``: the
 remap, arrow and PNG encoding each time; the service does it at most twice a second). Reference,
@@ -21,9 +21,11 @@ import json
 import logging
 import statistics
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 from aiohttp import web
 from common import ROOT, free_port
@@ -99,7 +101,8 @@ def main() -> None:
     api_port, bare_port = free_port(), free_port()
     loop = asyncio.new_event_loop()
     threading.Thread(target=serve, args=(loop, api, api_port, bare_port), daemon=True).start()
-    bot, bare = localiser_client("127.0.0.1", api_port), localiser_client("127.0.0.1", bare_port)
+    folder = Path(tempfile.mkdtemp(prefix="extloc-oldapi-"))
+    bot, bare = localiser_client("127.0.0.1", api_port, folder), localiser_client("127.0.0.1", bare_port, folder)
     deadline = time.monotonic() + 10
     while bot.getLocalizerImage() is None:  # the maps made, the server up
         assert time.monotonic() < deadline, "the old API did not come up in 10 s"

@@ -1,6 +1,6 @@
 """The old PenguinPi localiser's API as its clients read it (services/extloc/oldapi.py, oldsquare.py).
 
-The course's own client, unchanged (tests/upstream/penguinpi_robot/pibot_client.py), reads the
+The course's own client, unchanged (loaded by its commit and hash: tests/course_clients.py), reads the
 lab localizer's HTTP API served in this process: a robot's pose in the old square's frame and in
 degrees, ``0, 0, 0`` for a robot not seen lately and for a group that is no robot (the client must
 not raise), the old square's picture; hostile query strings get a 200 with zeros and a reason, one
@@ -15,6 +15,7 @@ import asyncio
 import logging
 import math
 import time
+from pathlib import Path
 
 import aiohttp
 import cv2
@@ -133,7 +134,7 @@ def pose(x: float, y: float, theta: float) -> m.ExternalPose:
     return m.ExternalPose(stamp=1, x=x, y=y, theta=theta, covariance=[0.0] * 9)
 
 
-async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_queries(overhead) -> None:
+async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_queries(overhead, tmp_path: Path) -> None:
     """Group 1 seen (its pose in the old square's frame, degrees), group 2 seen 5 s ago (no stale
     pose), group 5 never seen, group 7 no robot, and the client's own default group (None): the
     client returns numbers for each and never raises; then query strings a student might send."""
@@ -150,7 +151,7 @@ async def test_upstream_client_reads_old_units_and_zeros_and_survives_hostile_qu
     port = free_port()
     await api.start("127.0.0.1", port)
     try:
-        bot = localiser_client("127.0.0.1", port)
+        bot = localiser_client("127.0.0.1", port, tmp_path)
         x, y, theta = await asyncio.to_thread(bot.getLocalizerPose, 1)
         assert (x, y) == pytest.approx((0.5, 1.4)) and theta == pytest.approx(math.degrees(2.0))
         for group in (2, 5, 7, None):

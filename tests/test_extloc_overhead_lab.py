@@ -6,7 +6,7 @@ the lab's own credentials, rendering the overhead camera from the robots' ``sim/
 each robot's pose on its own ``extloc/pose`` against the simulator's truth, on the lab router and
 on the robot's own router; a robot carried out
 of view gets no pose; the old localiser's HTTP API read by the course's pibot_client, unchanged
-(tests/upstream): the old square's frame, degrees, zeros for an unknown group and for the robot out
+(tests/course_clients.py): the old square's frame, degrees, zeros for an unknown group and for the robot out
 of view, hostile query strings; and a student who forges an external pose, their own robot's or another's, on the
 lab router or their robot's own router, with or without wildcards, is refused. Takes 30-60 s.
 """
@@ -128,7 +128,7 @@ async def test_overhead_localizer_in_a_simulated_lab(tmp_path: Path) -> None:
 
                 # The old localiser's API, read by the course's own client: group 1 is the first robot,
                 # in the old square's frame (its corner at the world's (-0.5, -0.5)) and in degrees.
-                bot = localiser_client("127.0.0.1", http_port)
+                bot = localiser_client("127.0.0.1", http_port, lab.root)
                 x, y, theta = answered(bot.getLocalizerPose, 1)
                 assert math.hypot(x - (STARTS[0][0] + 0.5), y - (STARTS[0][1] + 0.5)) < 0.01, (x, y)
                 assert abs(theta - math.degrees(STARTS[0][2])) < 1.5, theta
