@@ -130,6 +130,9 @@ class Api:
         """m/s per firmware demand unit."""
         self.max_demand = config.webapi.max_demand
         self.max_time = config.webapi.max_time
+        self.signs = config.webapi.wheel_signs
+        """(left, right): how the old API's clients see each wheel (``[webapi] wheel_signs``): their
+        demands and counts of a wheel with -1 are negated on the way in and out."""
         self.demand = [0.0, 0.0]
         """Last held demands (left, right), for /motor/set/velocity."""
         self.encoder_zero = (0, 0)
@@ -201,12 +204,13 @@ class Api:
         return await self.follows.get(keys.WHEELS, self.robot.timeout)
 
     async def encoders(self) -> tuple[int, int] | None:
-        """Counts since the last /robot/hw/reset, wrapped to int16 as the firmware's."""
+        """Counts since the last /robot/hw/reset, wrapped to int16 as the firmware's, each with
+        its wheel's sign (``[webapi] wheel_signs``)."""
         counts = await self.counts()
         if counts is None:
             return None
-        return (params.to_int16(counts.ticks_left - self.encoder_zero[0]),
-                params.to_int16(counts.ticks_right - self.encoder_zero[1]))
+        return (params.to_int16(self.signs[0] * (counts.ticks_left - self.encoder_zero[0])),
+                params.to_int16(self.signs[1] * (counts.ticks_right - self.encoder_zero[1])))
 
     async def get_dip(self) -> int | None:
         """The DIP switch (hwbridge sends it once a second), or None if none came within the bus timeout."""
@@ -227,9 +231,14 @@ class Api:
         return text(json.dumps(body))
 
     async def drive(self, left: float, right: float) -> None:
-        """Hold wheel demands (firmware units) until the next command."""
+        """Hold wheel demands (firmware units, as the client sees the wheels) until the next command."""
         self.demand = [left, right]
-        await self.robot.set_velocity(left * self.unit, right * self.unit)
+        await self.robot.set_velocity(*self.speeds(left, right))
+
+    def speeds(self, left: float, right: float) -> tuple[float, float]:
+        """A client's demands (firmware units) -> the wheels' rim speeds on the bus (m/s), each
+        with its wheel's sign (``[webapi] wheel_signs``)."""
+        return left * self.signs[0] * self.unit, right * self.signs[1] * self.unit
 
     # ------------------------------------------------------------------ robot
 
@@ -242,7 +251,7 @@ class Api:
         else:
             # One cmd/motion query: hwbridge ramps, holds and stops, and answers when done.
             self.demand = [0.0, 0.0]
-            await self.robot.set_velocity(left * self.unit, right * self.unit,
+            await self.robot.set_velocity(*self.speeds(left, right),
                                           self.timed_duration(left, right, duration, accel), accel)
         return await self.state()
 
