@@ -473,6 +473,12 @@ class Webapi(Section):
     camera_get: Literal["stream", "frame"] = "stream"
     """What ``/camera/get`` answers: "stream", the old server's endless MJPEG stream; "frame", one
     JPEG per request (for clients written against a course simulator that serves one image)."""
+    wheel_signs: tuple[Literal[1, -1], Literal[1, -1]] = (1, 1)
+    """How the old API's clients see each wheel, (left, right): -1 turns that wheel round for
+    them, as on a robot whose motor and encoder leads of that wheel were swapped. A fleet whose
+    clients negate the right wheel's speed for their physical robots (ECE4078 2023's
+    ``set_velocity``: "if right wheel spins backwards") sets ``[1, -1]``: their speeds and counts
+    of that wheel are negated on the way in and out, and their code drives straight."""
 
 
 class Lab(Section):

@@ -166,3 +166,39 @@ def localiser_client(host: str, port: int, tmp: Path) -> object:
     module = load(PENGUINPI_PIBOT_CLIENT, tmp, "pibot_client")
     module.VideoStreamWidget = NoRobotCamera
     return module.PiBot("127.0.0.1", 9, localiser_ip=host, localiser_port=port)
+
+
+class TranscribedECE4078PenguinPi:
+    """``PenguinPi.set_velocity`` of ECE4078 2023's ``util/pibot.py`` at `ECE4078_2023_PIBOT`'s commit,
+    line for line: used only where that file is not here (`ece4078_client`)."""
+
+    def __init__(self, ip, port):
+        self.ip = ip
+        self.port = port
+        self.wheel_vel = [0, 0]
+
+    def set_velocity(self, command, tick=50, turning_tick=20, time=0):
+        if self.ip == "localhost":
+            l_vel = command[0] * tick - command[1] * turning_tick
+            r_vel = command[0] * tick + command[1] * turning_tick
+        else:
+            l_vel = command[0] * tick - command[1] * turning_tick
+            r_vel = -command[0] * tick - command[1] * turning_tick  # reverse right wheel velocity
+        self.wheel_vel = [l_vel, r_vel]
+        if time == 0:
+            requests.get(f"http://{self.ip}:{self.port}/robot/set/velocity?value=" + str(l_vel) + "," + str(r_vel))
+        else:
+            assert time > 0, "Time must be positive."
+            assert time < 30, "Time must be less than network timeout (20s)."
+            requests.get("http://" + self.ip + ":" + str(self.port) + "/robot/set/velocity?value=" + str(l_vel)
+                         + "," + str(r_vel) + "&time=" + str(time))
+        return l_vel, r_vel
+
+
+def ece4078_client(tmp: Path) -> types.ModuleType | types.SimpleNamespace:
+    """ECE4078 2023's ``util/pibot.py`` (its ``PenguinPi``), unchanged; its transcription
+    (`TranscribedECE4078PenguinPi`) where the file is not here."""
+    if found(ECE4078_2023_PIBOT) is None:
+        print("ECE4078 2023's pibot.py is not here: its transcription drives (tests/course_clients.py)")
+        return types.SimpleNamespace(PenguinPi=TranscribedECE4078PenguinPi)
+    return load(ECE4078_2023_PIBOT, tmp, "ece4078_2023_pibot")
