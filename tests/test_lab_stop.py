@@ -52,9 +52,10 @@ whole stop (issued -> standstill) at 0.38-0.84 s from 0.2 m/s (docs/hwbridge.md)
 twice that, from the slower 0.15 m/s the owners drive at here."""
 STILL_S = 0.3
 """Wheels whose counts have not changed for this long (simulated s) stand."""
-LAB_TIMEOUT_S = 5.0
-"""How long each robot has to confirm a stop here (``[lab] timeout``; 1 s by default): on this
-shared 2-core machine a starved simulator's board answers late (docs/lab.md has the figures)."""
+LAB_TIMEOUT_S = 10.0
+"""How long each robot has to confirm a stop here (``[lab] timeout``; 1 s by default; at most 10 s):
+on this shared 2-core machine a starved simulator's board answers late (docs/lab.md has the
+figures; with the suite beside other work at load 15-19, two of three releases took over 5 s)."""
 SETTLE_TICKS = 2
 """Counts a wheel that has just stood may still turn at zero duty, settling (seen once: one count,
 0.3 s after the last); a wheel driven at `SPEED` turns hundreds of counts a second."""
