@@ -18,10 +18,8 @@ import math
 import time
 
 import pytest
-from webapi_helpers import board, webapi, webapi_robot
+from webapi_helpers import board, still, webapi, webapi_robot
 
-from icefloe.schemas import keys
-from icefloe.schemas import messages as m
 from icefloe.services.webapi import timing
 
 K = 10 * math.pi * 0.065 / 384
@@ -34,23 +32,6 @@ REAL_BOUND = 0.015
 @pytest.fixture
 def robot(make_robot):
     return webapi_robot(make_robot)
-
-
-async def sim_state(node) -> m.SimState:
-    return await node.query(keys.SIM_CONTROL, m.SimControl(action="read"), timeout=5.0)
-
-
-async def still(node) -> m.SimState:
-    """The simulator's state once both wheels have stopped turning (within 30 s)."""
-    for _ in range(300):
-        state = await sim_state(node)
-        if abs(state.speed_left) + abs(state.speed_right) < 1e-4:
-            await asyncio.sleep(0.2)
-            again = await sim_state(node)
-            if abs(again.speed_left) + abs(again.speed_right) < 1e-4:
-                return again
-        await asyncio.sleep(0.1)
-    raise AssertionError(f"the wheels still turn: {state}")
 
 
 async def test_timed_motions_cover_v_times_t_across_speeds(robot):

@@ -24,12 +24,11 @@ import aiohttp
 import pytest
 from conftest import Proc, free_port
 from course_clients import ece4078_client
-from webapi_helpers import webapi, webapi_robot
+from webapi_helpers import still, webapi, webapi_robot
 
 from icefloe.config import ConfigError
 from icefloe.config import load as load_config
 from icefloe.errors import EXIT_CONFIG
-from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
 K = 10 * math.pi * 0.065 / 384
@@ -59,20 +58,6 @@ def test_the_service_starts_nothing_with_a_bad_value(tmp_path: Path) -> None:
     line = lines[0]
     assert res.returncode == EXIT_CONFIG, res.stderr
     assert "webapi.wheel_signs[1]" in line and "0" in line, line
-
-
-async def truth(node) -> m.SimState:
-    return await node.query(keys.SIM_CONTROL, m.SimControl(action="read"), timeout=5.0)
-
-
-async def still(node) -> m.SimState:
-    """The simulator's state once both wheels have stopped turning (within 30 s)."""
-    for _ in range(300):
-        state = await truth(node)
-        if abs(state.speed_left) + abs(state.speed_right) < 1e-4:
-            return state
-        await asyncio.sleep(0.1)
-    raise AssertionError(f"the wheels still turn: {state}")
 
 
 def motion(before: m.SimState, after: m.SimState) -> tuple[float, float]:
