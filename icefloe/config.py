@@ -808,4 +808,6 @@ def robot_info(config: RobotConfig) -> m.RobotInfo:
         track=config.geometry.track,
         ticks_per_rev=config.geometry.ticks_per_rev,
         max_wheel_speed=config.hwbridge.max_wheel_speed,
+        wheelbase=config.car.wheelbase,
+        max_steer=config.car.max_steer,
     )

@@ -821,3 +821,7 @@ class RobotInfo(Message):
     ticks_per_rev: int
     max_wheel_speed: float
     """m/s."""
+    wheelbase: float = 0.0
+    """The virtual car's (``cmd/car``): from its rear axle to its front axle, m (0 = not said)."""
+    max_steer: float = 0.0
+    """The virtual car's largest steering angle either way, rad (0 = not said)."""

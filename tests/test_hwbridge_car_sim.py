@@ -17,8 +17,10 @@ import time
 import msgspec
 import pytest
 import zenoh
+from conftest import wait_for
 from test_hwbridge_helpers import deadman_delay, sim_state, start_stack
 
+from icefloe.client import AsyncRobot
 from icefloe.motion.car import turn_radius
 from icefloe.runtime import Node
 from icefloe.schemas import codec, keys
@@ -67,6 +69,21 @@ class Car:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self._task = None
+
+
+async def after_stop(node: Node) -> None:
+    """Right after a confirmed stop: zero duty (the PenguinPi's confirmation counts 21 ms of wall
+    time for its 20 ms control step: a simulator behind the wall clock may run that step still,
+    as in tests/test_stops.py), and none during the next 50 ms (2.5 control steps)."""
+    first = now = await sim_state(node, "mark")
+    give_up = time.monotonic() + 10
+    while now.peak_duty != 0.0 and now.sim_time <= first.sim_time + 0.021:
+        assert time.monotonic() < give_up, "the simulator's clock stands still"
+        await asyncio.sleep(0.002)
+        now = await sim_state(node, "mark")
+    assert now.peak_duty == 0.0, f"duty {now.duty_left}, {now.duty_right} after the stop's confirmation"
+    await asyncio.sleep(0.05)
+    assert (await sim_state(node)).peak_duty == 0.0, "the wheels were driven after the stop"
 
 
 def unwrap(angles: list[float]) -> list[float]:
@@ -229,6 +246,17 @@ async def test_a_stop_the_deadman_bad_values_and_wildcards_as_for_cmd_twist(make
         await asyncio.sleep(0.3)
         assert (await sim_state(node)).peak_duty == 0.0, "a bad or wildcard cmd/car drove the wheels"
         assert hw.alive()
-        car.drive(SPEED, 0.0)  # and a good one still drives
-        await driven()
-        await car.quiet()
+
+        # The client: a car() block drives, and its end is a confirmed stop; drive_car(duration=...)
+        # stops by itself; a steering angle beyond the car's is refused before anything is sent.
+        async with AsyncRobot(config=robot.config) as client:
+            with pytest.raises(ValueError, match=r"^steer: 0.9 rad is beyond this robot's car.max_steer, 0.6 rad"):
+                await client.drive_car(SPEED, 0.9)
+            async with client.car(SPEED, 0.3):
+                await driven()
+                await client.drive_car(SPEED, -0.3)
+                await wait_for(lambda: (s := client.car_state) is not None and s.steer == -0.3, 10)
+            await after_stop(node)
+            await wait_for(lambda: (s := client.car_state) is not None and not s.driving, 5)
+            await client.drive_car(SPEED, 0.0, duration=0.5)
+            await after_stop(node)
