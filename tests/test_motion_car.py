@@ -14,6 +14,7 @@ from icefloe import config
 from icefloe.config import Car
 from icefloe.errors import ConfigError
 from icefloe.motion.car import VirtualCar, car_twist, turn_radius
+from icefloe.motion.diffdrive import limit_wheels, twist_to_wheels
 from icefloe.schemas import messages as m
 
 TRACK = 0.156
@@ -88,6 +89,24 @@ def test_a_turn_the_wheels_cannot_make_at_that_speed_is_slowed_keeping_its_radiu
     assert w.slowed and w.asked == 0.5 and max(abs(w.left), abs(w.right)) == pytest.approx(0.5)
     assert w.v < 0.5 and (w.left + w.right) / 2 == pytest.approx(w.v)
     assert centre_radius(w.left, w.right) == pytest.approx(turn_radius(0.6, 0.15))
+
+
+@pytest.mark.parametrize("v", [1e308, -1.7e308, 3.0])
+def test_a_huge_speed_is_the_wheels_limit_never_inf_or_nan(v: float) -> None:
+    """What a hostile student sends: the largest finite floats (tan(0.6) / 0.15 times them overflow)."""
+    car = VirtualCar(CAR, TRACK, max_wheel_speed=0.5)
+    car.command(v, 0.6, 0.0)
+    car.advance(1.0)
+    w = car.wheels
+    assert w.slowed and all(math.isfinite(x) for x in (w.left, w.right, w.v, car.x, car.y, car.theta))
+    assert max(abs(w.left), abs(w.right)) == pytest.approx(0.5)
+    assert centre_radius(w.left, w.right) == pytest.approx(turn_radius(0.6, 0.15))  # the centre on the left
+
+
+def test_a_twist_that_overflows_is_clamped_not_nan() -> None:
+    left, right = twist_to_wheels(1.79e308, 1e308, TRACK)
+    assert math.isinf(right)
+    assert limit_wheels(left, right, 0.5) == (0.0, 0.5, True)
 
 
 def test_the_bicycle_pose_runs_the_circle_and_stops_with_a_stop() -> None:

@@ -150,13 +150,16 @@ class VirtualCar:
     # ------------------------------------------------------------------ outputs
 
     def _compute(self) -> Wheels:
-        v_body, w = car_twist(self.v_asked, self.steer, self.car.wheelbase, self.car.facing)
+        # No wheel runs slower than the car (the outer one runs faster): a speed beyond the wheels'
+        # limit is that limit before anything else, so a huge one cannot overflow into inf and NaN.
+        v = max(-self.max_wheel_speed, min(self.max_wheel_speed, self.v_asked))
+        v_body, w = car_twist(v, self.steer, self.car.wheelbase, self.car.facing)
         left, right = twist_to_wheels(v_body, w, self.track)
         fastest = max(abs(left), abs(right))
         if fastest <= self.max_wheel_speed:
-            return Wheels(left, right, self.v_asked, False, self.v_asked)
+            return Wheels(left, right, v, v != self.v_asked, self.v_asked)
         scale = self.max_wheel_speed / fastest  # both wheels alike: the curvature, the car's path, kept
-        return Wheels(left * scale, right * scale, self.v_asked * scale, True, self.v_asked)
+        return Wheels(left * scale, right * scale, v * scale, True, self.v_asked)
 
     @property
     def wheels(self) -> Wheels:

@@ -6,6 +6,8 @@ contact points).
 
 from __future__ import annotations
 
+import math
+
 
 def twist_to_wheels(v: float, w: float, track: float) -> tuple[float, float]:
     """Body twist (v m/s forward, w rad/s CCW) -> (left, right) rim speeds, m/s."""
@@ -22,5 +24,11 @@ def limit_wheels(left: float, right: float, max_speed: float) -> tuple[float, fl
     biggest = max(abs(left), abs(right))
     if biggest <= max_speed:
         return left, right, False
+    if math.isinf(biggest):  # a huge twist overflowed: inf * 0 would be NaN; the limit of the scaling
+        return _towards_inf(left, max_speed), _towards_inf(right, max_speed), True
     scale = max_speed / biggest
     return left * scale, right * scale, True
+
+
+def _towards_inf(speed: float, max_speed: float) -> float:
+    return math.copysign(max_speed, speed) if math.isinf(speed) else 0.0
