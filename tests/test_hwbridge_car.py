@@ -102,8 +102,21 @@ def test_clipped_and_slowed_each_say_so(bridge: Bridge) -> None:
     t0 = time.monotonic_ns()
     bridge.car(m.CarDrive(v=0.5, steer=1.0), Origin(t0))
     bridge.car_step(t0 + 450_000_000)
-    assert "cmd/car: steer 1.000 rad is beyond car.max_steer (0.6 rad): clipped to 0.600 rad" in bridge.lines
-    assert any(line.startswith("cmd/car: v 0.500 m/s at steer 0.600 rad needs a wheel beyond "
+    assert "cmd/car: steer 1 rad is beyond car.max_steer (0.6 rad): clipped to 0.600 rad" in bridge.lines
+    assert any(line.startswith("cmd/car: v 0.5 m/s at steer 0.600 rad needs a wheel beyond "
                                "hwbridge.max_wheel_speed (0.5 m/s): slowed to ") for line in bridge.lines)
     left, right, _ = targets(bridge)
     assert max(abs(left), abs(right)) == pytest.approx(0.5)
+
+
+def test_a_hostile_value_gets_one_short_line(bridge: Bridge) -> None:
+    """The largest finite floats: clipped and slowed, each said in a line of ordinary length."""
+    t0 = time.monotonic_ns()
+    assert bridge.car(m.CarDrive(v=1.7e308, steer=-1e308), Origin(t0))
+    lines = [line for line in bridge.lines if line.startswith("cmd/car: ")]
+    assert lines[0] == "cmd/car: steer -1e+308 rad is beyond car.max_steer (0.6 rad): clipped to -0.600 rad"
+    assert lines[1].startswith("cmd/car: v 1.7e+308 m/s at steer 0.000 rad needs a wheel beyond")
+    assert all(len(line) < 200 for line in lines)
+    left, right, _ = targets(bridge)
+    assert left == right == 0.5
+

@@ -178,7 +178,7 @@ async def test_turning_circles_follow_wheelbase_over_tan_steer_and_beyond_the_li
         with contextlib.suppress(TimeoutError):
             while not any("clipped" in line for line in lines):
                 lines.append((await asyncio.wait_for(anext(logs), 5)).text)
-        assert "cmd/car: steer -0.900 rad is beyond car.max_steer (0.6 rad): clipped to -0.600 rad" in lines
+        assert "cmd/car: steer -0.9 rad is beyond car.max_steer (0.6 rad): clipped to -0.600 rad" in lines
 
 
 async def test_a_stop_the_deadman_bad_values_and_wildcards_as_for_cmd_twist(make_robot) -> None:

@@ -143,7 +143,7 @@ class Bridge:
             self.limited.warning(f"order:{source}", f"{source}: not applied: {why}")
             return False
         if made.clipped:
-            self.limited.warning(f"clip:{source}", f"{source}: steer {msg.steer:.3f} rad is beyond car.max_steer "
+            self.limited.warning(f"clip:{source}", f"{source}: steer {msg.steer:.4g} rad is beyond car.max_steer "
                                  f"({self.config.car.max_steer:g} rad): clipped to {made.steer_target:.3f} rad")
         if wheels.slowed:
             self._say_slowed(wheels)
@@ -152,7 +152,7 @@ class Bridge:
         return True
 
     def _say_slowed(self, wheels: CarWheels) -> None:
-        self.limited.warning(f"slow:{keys.CAR.name}", f"{keys.CAR.name}: v {wheels.asked:.3f} m/s at steer "
+        self.limited.warning(f"slow:{keys.CAR.name}", f"{keys.CAR.name}: v {wheels.asked:.4g} m/s at steer "
                              f"{self.car_model.steer:.3f} rad needs a wheel beyond hwbridge.max_wheel_speed "
                              f"({self.max_speed:g} m/s): slowed to {wheels.v:.3f} m/s, the turn kept")
 
