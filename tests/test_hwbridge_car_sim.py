@@ -187,7 +187,9 @@ async def test_a_stop_the_deadman_bad_values_and_wildcards_as_for_cmd_twist(make
     """A car command issued before a stop never drives after it (at any priority); the deadman
     stops the wheels 0.5 s after the last ``cmd/car``; bad payloads are dropped with one line each
     and hwbridge carries on; a ``cmd/car`` put on a wildcard drives nothing. Judged by the
-    simulated board's duty and the truth."""
+    simulated board's duty and the truth. Measured (2026-12-07): the deadman 0.500 and 0.510 s after
+    the last command's stamp (the bound: 0.49 to 0.7 s, as hw/wheels is stamped with its encoder
+    sample and a loaded machine delays the cycle)."""
     robot = make_robot(WORLD)
     async with robot.node() as node:
         logs = node.subscribe(keys.LOG, latest=False, maxsize=1000)
@@ -225,6 +227,7 @@ async def test_a_stop_the_deadman_bad_values_and_wildcards_as_for_cmd_twist(make
         await driven()
         await car.quiet()
         delay = await asyncio.wait_for(deadman_delay(wheels, car.last_wall_ns), 5.0)
+        print(f"deadman after the last cmd/car: {delay:.3f} s")
         assert 0.5 - 0.01 <= delay <= 0.5 + 0.2, f"deadman fired after {delay:.3f} s"
         car_state = await asyncio.wait_for(anext(node.subscribe(keys.CAR_STATE)), 5)
         assert not car_state.driving and car_state.v == 0.0, car_state
