@@ -249,7 +249,15 @@ class Overhead(Section):
     """The old localiser's HTTP API (``/pose/get``, ``/camera/get``); 0 = none."""
     http_host: str = "0.0.0.0"
     image_rate_hz: Annotated[float, Meta(ge=0, le=100)] = 2.0
-    """How often the picture for ``/camera/get`` is encoded (JPEG), Hz."""
+    """How often the pictures of ``/camera/get`` and ``/camera/frame`` are encoded, Hz."""
+    old_square_x: Annotated[float, Meta(ge=-1000, le=1000)] = -0.5
+    """Where the old localiser's 2 m square lies in the world: its corner (the old API's x, y = 0, 0),
+    world frame, m. The default puts it on the lab world's clear 2 m square, x and y in [-0.5, 1.5] m
+    (docs/extloc.md)."""
+    old_square_y: Annotated[float, Meta(ge=-1000, le=1000)] = -0.5
+    old_square_yaw: Annotated[float, Meta(ge=-math.tau, le=math.tau)] = 0.0
+    """Direction of the old square's +x axis in the world, rad CCW from the world's +x (its +y is
+    90 degrees CCW from that: the old frame is right-handed, as seen from above)."""
     sim_x: float = 0.0
     """The simulated camera's lens, world frame, m."""
     sim_y: float = 0.0
@@ -487,6 +495,26 @@ class Webapi(Section):
     camera_get: Literal["stream", "frame"] = "stream"
     """What ``/camera/get`` answers: "stream", the old server's endless MJPEG stream; "frame", one
     JPEG per request (for clients written against a course simulator that serves one image)."""
+    wheel_signs: tuple[Literal[1, -1], Literal[1, -1]] = (1, 1)
+    """How the old API's clients see each wheel, (left, right): -1 turns that wheel round for
+    them, as on a robot whose motor and encoder leads of that wheel were swapped. A fleet whose
+    clients negate the right wheel's speed for their physical robots (ECE4078 2023's
+    ``set_velocity``: "if right wheel spins backwards") sets ``[1, -1]``: their speeds and counts
+    of that wheel are negated on the way in and out, and their code drives straight."""
+
+
+class Lab(Section):
+    """The lab's emergency stop, in the lab machine's config (``icefloe lab stop``; the lab's page,
+    ``services/labpage``; docs/lab.md)."""
+
+    folder: str = ""
+    """The lab's credentials folder (``icefloe router --lab DIR``'s): the robots to stop, and the
+    TA's login (its file whose robot is "*"). "" = none: the robots alive on the bus, or ``--robot``."""
+    timeout: Annotated[float, Meta(gt=0, le=10)] = 1.0
+    """How long each robot has to confirm a stop, s."""
+    page_host: str = "0.0.0.0"
+    page_port: Port = 8090
+    """The lab's page (``services/labpage``): every robot's stop, for the TA's login only."""
 
 
 class Zenoh(Section):
@@ -563,6 +591,7 @@ class RobotConfig(Section):
     planner: Planner = Planner()
     follower: Follower = Follower()
     webapi: Webapi = Webapi()
+    lab: Lab = Lab()
     zenoh: Zenoh = Zenoh()
     source: str = ""
     """The file this config was read from (filled in by `load`)."""

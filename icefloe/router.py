@@ -31,7 +31,7 @@ import zenoh
 
 from . import paths
 from .config import RobotConfig, check_lab, private_dir, protocol
-from .credentials import GUEST_PASSWORD, GUEST_USER
+from .credentials import GUEST_PASSWORD, GUEST_USER, TA_ROBOT
 from .errors import ConfigError
 from .runtime import run, zenoh_config
 from .schemas import keys
@@ -60,11 +60,6 @@ def _acl_part(name: str, **fill: str | list[str]) -> dict:
         else:
             text = text.replace(f"{{{placeholder}}}", value)
     return json.loads(zenoh.Config.from_json5(text).get_json("access_control"))  # Zenoh reads its JSON5
-
-
-TA_ROBOT = "*"
-"""The ``robot`` of the lab's TA account in its credentials file: no robot of its own, the
-simulator's handles of every one (``ta.json5``)."""
 
 
 def access_control(owners: Sequence[tuple[str, str]], lab_protocols: Sequence[str] = (),

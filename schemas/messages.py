@@ -111,6 +111,47 @@ class Halt(Stop):
     zero duty with its controller cleared."""
 
 
+class LabStop(Command):
+    """``lab/stop`` query: the lab's emergency stop, the TA's alone (docs/lab.md): stop the wheels
+    now, as ``cmd/stop`` does, and answer (`LabStopDone`) once the board has confirmed it, or
+    within ``timeout`` that it has not.
+
+    ``action``:
+
+    * ``"stop"``: only that; the next motion command drives again.
+    * ``"hold"``: stop, and refuse every motion command (``cmd/twist``, ``cmd/wheels``,
+      ``cmd/motion``) until the hold is released: a program that keeps driving cannot drive.
+    * ``"release"``: end a hold. The robot stays stopped; a motion command issued after the
+      release drives again (none issued before it does).
+    """
+
+    action: Literal["stop", "hold", "release"] = "stop"
+    owner_may_release: bool = False
+    """``"hold"``: the robot's owner may release the hold too (``cmd/release``); else only the TA."""
+    reason: Annotated[str, msgspec.Meta(max_length=60)] = ""
+    """What the TA says, shown on the robot's screen, its web page and its log ("" = nothing)."""
+    timeout: Annotated[float, msgspec.Meta(gt=0, le=10)] = 1.0
+    """Answer by then, s: confirmed, or not confirmed and why."""
+
+
+class LabStopDone(Message):
+    """Answer to ``lab/stop``: what the robot did."""
+
+    stamp: int
+    confirmed: bool
+    """The board confirmed the stop this request latched (zero duty, controller cleared) within
+    the request's ``timeout``."""
+    held: bool
+    """The robot is held stopped now (`Hold`)."""
+    detail: str = ""
+    """Why it is not confirmed; else "" or a note ("was not held": a release that changed nothing)."""
+
+
+class Release(Command):
+    """``cmd/release`` query: the robot's owner ends a hold of the lab's TA, if the TA allowed it
+    (`LabStop.owner_may_release`); answered with `Hold`, or an error saying only the TA may."""
+
+
 class Motion(Command):
     """``cmd/motion`` query: run the wheels at fixed speeds for a time, then stop.
 
@@ -258,6 +299,21 @@ class LoopStats(Message):
     0: normal scheduling, the OS refused real time (hwbridge's log says why at start)."""
     memory_locked: bool = False
     """The cycle's memory is locked in RAM (``mlockall`` granted), so it is never paged out."""
+
+
+class Hold(Message):
+    """``hw/hold``: whether the lab's TA holds the robot stopped (``lab/stop``), published by
+    hwbridge at each change and once a second. While ``held``, hwbridge refuses every motion
+    command; the robot's screen and web page say so."""
+
+    stamp: int
+    held: bool
+    since: int = 0
+    """When the hold began, ns since the Unix epoch (0 = not held)."""
+    reason: str = ""
+    """What the TA said (`LabStop.reason`)."""
+    owner_may_release: bool = False
+    """The robot's owner may release it (``cmd/release``); else only the TA (``lab/stop``)."""
 
 
 class BatteryReading(Message):

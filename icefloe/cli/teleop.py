@@ -5,6 +5,7 @@
     a / Left    turn left
     d / Right   turn right        + -     faster / slower (speed and turn rate, x1.25)
     space / x   stop now          Ctrl-C, Esc or Ctrl-D: stop and quit
+    !           the lab's emergency stop (the TA's credentials): hold every robot on the bus stopped
 
 Hold a key (or tap it again and again): the robot keeps the last motion while keys keep coming,
 sent as ``cmd/twist`` ten times a second, and stops (``cmd/stop``) when none came for
@@ -12,6 +13,10 @@ sent as ``cmd/twist`` ten times a second, and stops (``cmd/stop``) when none cam
 smoothly). It stops at once on space, when the terminal loses focus (terminals that report
 focus: xterm, GNOME Terminal, iTerm2, kitty, Windows Terminal, tmux with ``focus-events on``),
 and when teleop ends for any reason (a key, Ctrl-C, SIGTERM, the terminal closing).
+
+``!`` is the lab's TA's (docs/lab.md): it asks every robot whose hwbridge is alive on the bus to
+stop and hold (``lab/stop``, as ``icefloe lab stop --hold``) and prints which confirmed; only the
+TA's credentials may, others hear no answer. ``icefloe lab release`` ends the holds.
 """
 
 from __future__ import annotations
@@ -27,6 +32,9 @@ import time
 import tty
 from dataclasses import dataclass
 
+import msgspec
+
+from .. import labstop
 from ..config import RobotConfig
 from ..errors import IcefloeError
 from ..runtime import Node
@@ -45,6 +53,7 @@ MOTIONS: dict[bytes, tuple[int, int, str]] = {
 }
 """Key -> (direction of v, direction of w, what it does); arrows as the terminal sends them."""
 STOP_KEYS = (b" ", b"x")
+LAB_STOP_KEY = b"!"
 QUIT_KEYS = (b"\x03", b"\x04", b"\x1b")
 FASTER, SLOWER = (b"+", b"="), (b"-", b"_")
 FOCUS_IN, FOCUS_OUT = b"\x1b[I", b"\x1b[O"
@@ -77,6 +86,8 @@ class Drive:
         """Apply one key; returns "move", "stop", "quit" or "" (nothing to send)."""
         if key in QUIT_KEYS:
             return "quit"
+        if key == LAB_STOP_KEY:
+            return "lab stop"
         if key in STOP_KEYS or key == FOCUS_OUT:
             self.stop("stopped" if key != FOCUS_OUT else "stopped: the terminal lost focus")
             return "stop"
@@ -134,6 +145,10 @@ async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
     drive = Drive(speed=min(args.speed, rim), turn=min(args.turn, 2 * rim / config.geometry.track),
                   max_speed=rim, max_turn=2 * rim / config.geometry.track, hold=args.hold)
     robot = args.robot or config.name
+    if not keys.is_concrete(robot) or any(c in robot for c in "$?#/"):
+        raise IcefloeError(f"--robot {robot!r}: name one robot (a TA's credentials name none: give --robot)")
+    # Its keys are the named robot's: --robot drives that robot, not the config's (nor, for the TA, "*").
+    config = msgspec.structs.replace(config, name=robot)
     async with Node("teleop", config, retry=False) as node:
         if problem := check_robot(await node.alive("*"), robot):
             warn(problem)
@@ -157,7 +172,8 @@ async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             loop.add_signal_handler(sig, quit_.set)
         try:
-            await drive_loop(drive, keys_in, quit_, twist, stop, pose, 1.0 / args.rate, node.command)
+            await drive_loop(drive, keys_in, quit_, twist, stop, pose, 1.0 / args.rate, node.command,
+                             lambda: lab_hold(node, config.lab.timeout))
         finally:
             stop.put(node.command(m.Stop))  # whatever ended teleop: the wheels stop
             loop.remove_reader(fd)
@@ -171,11 +187,32 @@ async def teleop(args: argparse.Namespace, config: RobotConfig) -> int:
     return 0
 
 
+async def lab_hold(node: Node, timeout: float) -> list[str]:
+    """The ``!`` key: hold every robot alive on the bus stopped (`labstop.stop`), each given ``timeout``
+    s to confirm (``[lab] timeout`` of the config); the lines to print."""
+    answers = await labstop.stop(node, node.command(m.LabStop, action="hold", reason="teleop's ! key",
+                                                    timeout=timeout))
+    if not answers:
+        return ["lab stop: no robot's hwbridge is alive on the bus"]
+    lines = [f"lab stop: {a.line()}" for a in answers]
+    if not any(a.confirmed for a in answers):
+        lines.append("lab stop: no robot answered: only the lab's TA account may (--credentials ta.credentials)")
+    return [*lines, f"lab stop: {labstop.summary(answers, 'hold')}; `icefloe lab release` ends the holds"]
+
+
 async def drive_loop(drive: Drive, keys_in: asyncio.Queue[bytes], quit_: asyncio.Event, twist, stop, pose,
-                     period: float, command) -> None:  # type: ignore[no-untyped-def]
+                     period: float, command, lab_stop=None) -> None:  # type: ignore[no-untyped-def]
     """Keys in, twists out, every ``period`` s while moving; returns on a quit key or signal.
-    ``command`` (`Node.command`) numbers them: a stop wins over a twist sent before it."""
+    ``command`` (`Node.command`) numbers them: a stop wins over a twist sent before it. ``lab_stop``
+    (the ``!`` key) returns lines to print above the status line."""
     latest: m.Pose | None = None
+    printed: list[str] = []
+    asking: set[asyncio.Task[list[str]]] = set()
+
+    def said(task: asyncio.Task[list[str]]) -> None:
+        asking.discard(task)
+        if not task.cancelled():
+            printed.extend(task.result() if task.exception() is None else [f"lab stop: {task.exception()}"])
 
     async def follow_pose() -> None:
         nonlocal latest
@@ -193,6 +230,12 @@ async def drive_loop(drive: Drive, keys_in: asyncio.Queue[bytes], quit_: asyncio
                 what = drive.key(key, now)
                 if what == "quit":
                     return
+                if what == "lab stop" and lab_stop is not None:
+                    stop.put(command(m.Stop))  # this robot at once, the others as they answer
+                    drive.stop("stopped: the lab's stop (!) asked every robot")
+                    task = asyncio.ensure_future(lab_stop())
+                    asking.add(task)
+                    task.add_done_callback(said)
                 if what == "stop":
                     stop.put(command(m.Stop))
                 if what == "move":
@@ -204,12 +247,17 @@ async def drive_loop(drive: Drive, keys_in: asyncio.Queue[bytes], quit_: asyncio
                 twist.put(command(m.Twist, v=drive.v, w=drive.w))
                 next_send = now + period
             where = f"  x {latest.x:+.2f} y {latest.y:+.2f} m" if latest else ""
+            while printed:  # above the status line, which is drawn again below them
+                sys.stdout.write("\r\x1b[K" + printed.pop(0) + "\n")
+                shown = ""
             if (line := drive.line() + where) != shown:  # only what changed: a terminal over Wi-Fi is slow
                 sys.stdout.write("\r" + line + "\x1b[K")
                 sys.stdout.flush()
                 shown = line
     finally:
         poses.cancel()
+        for task in asking:
+            task.cancel()
 
 
 def register(verbs: argparse._SubParsersAction) -> None:

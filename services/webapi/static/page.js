@@ -6,6 +6,7 @@
 //                                          most 10 samples a second each, and its services' tokens
 //   GET /bus/log                          (event stream): every log line, in order
 //   PUT /bus/cmd/twist, PUT /bus/cmd/stop: drive and stop
+// While the lab's TA holds the robot stopped (hw/hold), the page says so and does not drive.
 // Each event is {"key", "value", "encoding", "time"}; value is the message (schemas/json/).
 "use strict";
 
@@ -43,6 +44,7 @@ const shown = {
   landmarks: new Map(), // stamp -> detected markers, to draw on the picture they came from
   lastLandmarks: [],
   services: new Set(),
+  held: false, // hw/hold: the lab's TA holds the robot stopped
 };
 
 function onSample(sample, kind) {
@@ -74,7 +76,22 @@ function onSample(sample, kind) {
     case "camera/image":
       showImage(v);
       break;
+    case "hw/hold":
+      showHold(v);
+      break;
   }
+}
+
+function showHold(hold) {
+  // hwbridge says it at each change and once a second; while held it refuses every motion command.
+  shown.held = hold.held;
+  $("hold").hidden = !hold.held;
+  if (!hold.held) return;
+  const who = hold.owner_may_release ? "the lab's TA or its owner" : "the lab's TA";
+  $("hold").textContent = `held stopped by the lab's TA${hold.reason ? ": " + hold.reason : ""}`;
+  $("hold").title = `since ${new Date(hold.since / 1e6).toLocaleTimeString()}; driving is refused until ${who} releases it`;
+  if (drive.timer !== null) drive.stop("held by the lab's TA: stopped");
+  drive.show(`held by the lab's TA: driving is refused until ${who} releases it`);
 }
 
 function deg(rad) {
@@ -215,6 +232,7 @@ const drive = {
   inFlight: 0,
 
   press(what, direction) {
+    if (shown.held) return this.show("held by the lab's TA: driving is refused until it is released");
     this.held.set(what, direction);
     if (this.timer === null) {
       this.timer = setInterval(() => this.beat(), 100);
