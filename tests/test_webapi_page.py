@@ -118,10 +118,11 @@ async def test_the_page_shows_the_robot_and_its_pad_drives_it(robot, tmp_path):
 async def test_as_a_car_the_pad_steers_and_the_truth_runs_on_the_cars_circle(robot, tmp_path):
     """With "as a car" ticked, ▲ and ◀ held (the arrow keys), the steering at 0.5 rad and the speed at
     0.3 m/s send ``cmd/car`` (no ``cmd/twist``), and the simulator's truth runs on the car's circle,
-    wheelbase / tan(0.5) = 0.2746 m, within 3 % over 2.5 rad of turn (measured 2026-12-07: +0.39,
-    -0.25, -0.47 % at load 1-2, -0.73, -0.22 % beside six CPU hogs; the call takes 7.7-10 s);
-    the page shows the car's steering and its model's pose. Letting go stops the wheels within
-    the deadman."""
+    wheelbase / tan(0.5) = 0.2746 m, within 3 % over 2.5 rad of turn (measured 2026-12-07: -0.50 to
+    +0.39 % in six runs at load 1-2, -0.73, -0.22, +0.07 % beside six CPU hogs; the call takes 8.6 s
+    at load 1, 10 s beside six hogs, 21 s beside twelve and another checkout's tests);
+    the page shows the car's steering and its model's pose. Letting go, and unticking the box
+    while driving, each stop the wheels within the deadman."""
     from test_hwbridge_car_sim import ARC_RAD, circle, collect, settle
 
     from icefloe.motion.car import turn_radius
@@ -170,6 +171,18 @@ async def test_as_a_car_the_pad_steers_and_the_truth_runs_on_the_cars_circle(rob
             await asyncio.sleep(0.5)
             assert (await sim_state(node)).x == pytest.approx(stopped.x, abs=0.002), "it moved after the stop"
             await page.screenshot(path=str(tmp_path / "car.png"), full_page=True)
+            # Driving again, the box unticked: a stop (what is held was meant for the car).
+            await page.keyboard.down("ArrowUp")
+            deadline = time.monotonic() + 10
+            while abs((await sim_state(node)).speed_left) < 0.05:
+                assert time.monotonic() < deadline, "▲ did not drive the car again"
+                await asyncio.sleep(0.05)
+            unticked = time.time_ns()
+            await page.uncheck("#car-mode")
+            assert await asyncio.wait_for(deadman_delay(wheels, unticked), 5) < DEADMAN
+            assert "now driving as a unicycle" in await page.inner_text("#drive-state")
+            await page.keyboard.up("ArrowUp")
+            await until_still(node)
         finally:
             for task in tasks:
                 task.cancel()

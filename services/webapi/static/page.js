@@ -342,8 +342,8 @@ function setUpDrivePad() {
 
 function setCarMode(on) {
   // Switching stops the robot: what was held was meant for the other mode.
-  drive.stop(on ? "stopped: now driving as a car" : "stopped: now driving as a unicycle");
-  if (drive.timer === null) drive.show(on ? "stopped (as a car: ▲ ▼ drive, ◀ ▶ steer)" : "stopped");
+  if (drive.timer !== null) drive.stop(on ? "stopped: now driving as a car" : "stopped: now driving as a unicycle");
+  else drive.show(on ? "stopped (as a car: ▲ ▼ drive, ◀ ▶ steer)" : "stopped");
   drive.carMode = on;
   $("steer-box").hidden = !on;
   $("car-state").hidden = !on;
@@ -358,8 +358,8 @@ async function main() {
   document.title = `${robot.robot} · icefloe`;
   $("robot").textContent = robot.robot;
   $("speed").max = robot.max_wheel_speed;
-  $("steer").max = robot.car.max_steer;
-  $("steer").step = robot.car.max_steer / 12;
+  $("steer").max = robot.car.max_steer; // in twelfths of it: full lock, half (the start), ...
+  $("steer").min = $("steer").step = robot.car.max_steer / 12;
   $("steer").value = robot.car.max_steer / 2;
   $("steer-value").textContent = Number($("steer").value).toFixed(2);
   setCarMode($("car-mode").checked); // a reload keeps the box ticked
