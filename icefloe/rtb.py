@@ -31,11 +31,13 @@ import asyncio
 import heapq
 import itertools
 import math
+import threading
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+import zenoh
 
 try:
     from roboticstoolbox import Bicycle, LandmarkMap, RangeBearingSensor, Unicycle
@@ -44,6 +46,8 @@ except ImportError as exc:  # an optional extra: say how to get it, once, when u
 
 from .angles import wrap_angle
 from .config import RobotConfig
+from .errors import MotionStopped
+from .schemas import keys
 from .schemas import messages as m
 from .worldmap import WorldMap
 
@@ -234,16 +238,28 @@ async def drive_car(car: Car, robot, duration: float) -> np.ndarray:
     """Drive ``robot`` (an `icefloe.client.AsyncRobot`) with ``car``'s control for ``duration`` s: each
     ``car.dt`` s (by the wall clock, as hwbridge's steering and deadman run) one toolbox step, its
     (v, steer) sent as ``cmd/car`` and integrated by the model; then the robot is stopped (confirmed),
-    also when this is cancelled or fails. Returns the model's prediction, ``car.x_hist`` (one row
-    (x, y, theta) per step, from ``car``'s ``x0``). The drivers steer by the model's pose, as in the
-    toolbox: the robot follows the model's commands open loop, and where it ends differs from the
-    prediction by what the model leaves out (wheel slip, the wheels' acceleration, a loaded machine)."""
+    also when this is cancelled or fails (a control that gives NaN: `ValueError` naming ``v`` or
+    ``steer``). A ``cmd/stop`` from another program (a teacher's stop, ``icefloe pub cmd/stop``) ends
+    the drive: `MotionStopped`, and nothing more is sent. Returns the model's prediction,
+    ``car.x_hist`` (one row (x, y, theta) per step, from ``car``'s ``x0``).
+
+    The drivers steer by the model's pose, as in the toolbox: the robot follows the model's commands
+    open loop, and where it ends differs from the prediction by what the model leaves out (wheel
+    slip, the wheels' acceleration, a loaded machine)."""
+    stopped = threading.Event()
+    listener = robot.node.on_samples(robot.node.key(keys.STOP), lambda _sample: stopped.set(),
+                                     allowed_origin=zenoh.Locality.REMOTE)
     car.init(animate=False)
     start = time.monotonic()
-    async with robot.car(0.0, 0.0):
-        for i in range(round(duration / car.dt)):
-            car.step(animate=False)
-            v, steer = float(car.u[0]), float(car.u[1])
-            await robot.drive_car(v, steer)
-            await asyncio.sleep(max(0.0, start + (i + 1) * car.dt - time.monotonic()))
+    try:
+        async with robot.car(0.0, 0.0):
+            for i in range(round(duration / car.dt)):
+                car.step(animate=False)
+                if stopped.is_set():
+                    raise MotionStopped(f"rtb.drive_car: ended by a cmd/stop from another program after {i} of "
+                                        f"{round(duration / car.dt)} steps")
+                await robot.drive_car(float(car.u[0]), float(car.u[1]))
+                await asyncio.sleep(max(0.0, start + (i + 1) * car.dt - time.monotonic()))
+    finally:
+        listener.undeclare()
     return car.x_hist
