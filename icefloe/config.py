@@ -133,6 +133,28 @@ class Hwbridge(Section):
     """Measured wheel speed = encoder counts over this window, s (one count is ~0.5 mm)."""
 
 
+class Car(Section):
+    """The virtual car hwbridge drives on ``cmd/car`` (``[car]``, docs/motion-models.md): a
+    bicycle-model car whose rear axle is the drive wheels' axle.
+
+    There is no other place for it: a differential base turns about a point on its wheels' axle,
+    as a car turns about a point on its rear axle's line, and a rear axle anywhere else would have
+    to slide sideways in every turn. What the config chooses is which end of the robot is the
+    car's front (``facing``)."""
+
+    wheelbase: Annotated[float, Meta(ge=0.02, le=5.0)] = 0.15
+    """From the rear axle (the drive wheels) to the front axle, m."""
+    max_steer: Annotated[float, Meta(gt=0, le=1.3)] = 0.6
+    """Largest steering angle either way, rad (a larger ``cmd/car`` is clipped, with a log line)."""
+    steer_rate: Annotated[float, Meta(gt=0, le=50)] = 1.5
+    """How fast the steering turns, rad/s (a car cannot jump from full left to full right)."""
+    facing: Literal["forward", "backward"] = "forward"
+    """Where the car's front is: "forward", the robot's front (the front axle ``wheelbase`` ahead of
+    the drive wheels); "backward", the robot's back (the car drives castor first)."""
+    state_rate_hz: Annotated[float, Meta(gt=0, le=200)] = 50.0
+    """Rate of ``car/state`` while the car moves or steers, and of the steering's steps, Hz."""
+
+
 class Camera(Section):
     """The robot's camera and what it costs (docs/camera.md, "What the camera costs"): detection's
     CPU is about proportional to ``width`` x ``height`` x ``detection_rate_hz``."""
@@ -555,6 +577,7 @@ class RobotConfig(Section):
     board: Board = Board()
     geometry: Geometry = Geometry()
     hwbridge: Hwbridge = Hwbridge()
+    car: Car = Car()
     camera: Camera = Camera()
     extloc: Extloc = Extloc()
     overhead: Overhead = Overhead()
@@ -728,6 +751,7 @@ def parse(data: dict[str, Any], source: str = "<config>", *, credentials: bool =
     if not config.name or any(c in config.name for c in "/*$#? "):
         raise ConfigError(f"{source}: name: {config.name!r} is not a usable robot name")
     check_programs(config, source)
+    check_car(config, source)
     check_lab(config.zenoh, config.zenoh.listen, source)
     run_dir = str(config.runtime_dir)
     expanded = _expand(msgspec.to_builtins(config), {"run_dir": run_dir, "name": config.name,
@@ -752,6 +776,19 @@ def check_programs(config: RobotConfig, source: str) -> None:
         if not program.command or not program.command[0]:
             raise ConfigError(f"{source}: programs.{name}.command: give the program to run, "
                               'e.g. ["{python}", "my_service.py"]')
+
+
+def check_car(config: RobotConfig, source: str) -> None:
+    """`ConfigError` for a car whose tightest turn would run its inner rear wheel backwards: a
+    car's turning centre lies beyond its rear wheels, wheelbase / tan(max_steer) >= track / 2."""
+    car, half_track = config.car, config.geometry.track / 2
+    tightest = car.wheelbase / math.tan(car.max_steer)
+    if tightest < half_track:
+        most = math.atan(car.wheelbase / half_track)
+        raise ConfigError(f"{source}: car.max_steer: {car.max_steer:g} rad turns about a point "
+                          f"{tightest:.3f} m from the rear axle's centre, inside the wheels ({half_track:g} m "
+                          f"each side): a car's inner wheel would run backwards; at most {most:.3f} rad for "
+                          f"wheelbase {car.wheelbase:g} m")
 
 
 def protocol(endpoint: str) -> str:
@@ -800,4 +837,6 @@ def robot_info(config: RobotConfig) -> m.RobotInfo:
         track=config.geometry.track,
         ticks_per_rev=config.geometry.ticks_per_rev,
         max_wheel_speed=config.hwbridge.max_wheel_speed,
+        wheelbase=config.car.wheelbase,
+        max_steer=config.car.max_steer,
     )

@@ -47,6 +47,8 @@ TWIST = Topic("cmd/twist", m.Twist, "in")
 WHEELS_CMD = Topic("cmd/wheels", m.WheelSpeeds, "in")
 STOP = Topic("cmd/stop", m.Stop, "in", urgent=True)
 MOTION = Topic("cmd/motion", m.Motion, "query", reply=m.MotionDone)
+CAR = Topic("cmd/car", m.CarDrive, "in")
+"""Drive as a car: speed and steering angle (the virtual car of ``[car]``, docs/motion-models.md)."""
 LEDS = Topic("io/leds", m.Led, "in")
 LEDARRAY = Topic("io/ledarray", m.LedArray, "in")
 OLED_TEXT = Topic("oled/text", m.OledText, "in")
@@ -72,6 +74,8 @@ HOLD = Topic("hw/hold", m.Hold, "out")
 BUTTONS = Topic("io/buttons", m.Buttons, "out")
 DIP = Topic("io/dip", m.Dip, "out")
 ODOM_POSE = Topic("odom/pose", m.Pose, "out")
+CAR_STATE = Topic("car/state", m.CarState, "out")
+"""The virtual car's steering and bicycle-model pose, from hwbridge (docs/motion-models.md)."""
 LOC_POSE = Topic("loc/pose", m.PoseEstimate, "out")
 IMAGE = Topic("camera/image", m.Image, "out")
 LANDMARKS = Topic("camera/landmarks", m.Landmarks, "out")
@@ -118,9 +122,9 @@ NAV_STATUS = Topic("nav/status", m.FollowStatus, "out")
 TABLE: dict[str, Topic] = {
     t.name: t
     for t in (
-        TWIST, WHEELS_CMD, STOP, MOTION, HALT, LAB_STOP, RELEASE, LEDS, LEDARRAY, OLED_TEXT, OLED_SCREEN,
+        TWIST, WHEELS_CMD, CAR, STOP, MOTION, HALT, LAB_STOP, RELEASE, LEDS, LEDARRAY, OLED_TEXT, OLED_SCREEN,
         BOARD_TEXT, BOARD_SCREEN,
-        WHEELS, LOOP, HW_BATTERY, HOLD, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
+        WHEELS, LOOP, HW_BATTERY, HOLD, BUTTONS, DIP, ODOM_POSE, CAR_STATE, LOC_POSE, IMAGE, LANDMARKS,
         BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, EXTLOC_POSE, TRUTH, SIM_GPIO,
         ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL, FRAMES, FRAME, CAMERA_INFO,
         MAP_GRID, PLAN, NAV_PATH, NAV_STATUS,

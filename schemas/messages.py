@@ -75,10 +75,30 @@ class WheelSpeeds(Command):
     right: float
 
 
+class CarDrive(Command):
+    """``cmd/car``: drive the robot as a car (the virtual Ackermann-steered car of the robot
+    config's ``[car]``, docs/motion-models.md): a forward speed and a steering angle.
+
+    The steering angle, not the curvature: it is what a car's driver sets and what the bicycle
+    model of the textbooks (and the Robotics Toolbox's ``Bicycle``) takes, and the car's limits
+    are on it: its largest angle (``car.max_steer``) and how fast it turns (``car.steer_rate``).
+    The path's curvature is tan(steer) / ``car.wheelbase``. hwbridge turns the steering towards
+    ``steer`` at the steering rate, clips it to the largest angle and slows the car (its turn
+    kept) when the outer wheel would pass ``hwbridge.max_wheel_speed``, each with a log line;
+    ``car/state`` says what it applies.
+    """
+
+    v: float
+    """Forward speed of the car's rear axle, m/s (positive: the car's forward)."""
+    steer: float
+    """Steering angle of the front wheel (the bicycle model's one wheel), rad, positive to the
+    left (counter-clockwise); clipped to +-``car.max_steer``."""
+
+
 class Stop(Command):
     """``cmd/stop``: stop now. An empty map (or an empty payload) will do.
 
-    The stop latches: the wheels stay stopped until a twist, wheels or motion
+    The stop latches: the wheels stay stopped until a twist, wheels, car or motion
     command issued after it.
     """
 
@@ -348,6 +368,31 @@ class Pose(Message):
     """Forward speed, m/s."""
     w: float = 0.0
     """Turn rate, rad/s."""
+
+
+class CarState(Message):
+    """``car/state``: the virtual car as hwbridge drives it (docs/motion-models.md): its steering
+    after the rate limit, and the bicycle model's pose of its rear axle, integrated from what was
+    applied (starting at 0, 0, 0 where hwbridge started; no wheel slip, no wheel lag), to compare
+    with ``odom/pose`` and the simulator's ``sim/truth``. Published at ``car.state_rate_hz``
+    while the car moves or steers, once a second otherwise."""
+
+    stamp: int
+    v: float
+    """Forward speed applied, m/s: the command's, slowed for the wheels' limit; 0 after a stop,
+    the deadman, or another kind of command."""
+    steer: float
+    """Steering angle now, rad (left positive), after the rate limit."""
+    steer_target: float
+    """The angle it turns towards: the last ``cmd/car``'s, clipped to +-``car.max_steer``, rad."""
+    x: float
+    """Bicycle model: the rear axle's centre, m."""
+    y: float
+    """m."""
+    theta: float
+    """The car's heading, rad, counter-clockwise, in (-pi, pi]."""
+    driving: bool = False
+    """A ``cmd/car`` drives the wheels now (False: stopped, the deadman, or another command)."""
 
 
 class PoseEstimate(Message):
@@ -832,3 +877,7 @@ class RobotInfo(Message):
     ticks_per_rev: int
     max_wheel_speed: float
     """m/s."""
+    wheelbase: float = 0.0
+    """The virtual car's (``cmd/car``): from its rear axle to its front axle, m (0 = not said)."""
+    max_steer: float = 0.0
+    """The virtual car's largest steering angle either way, rad (0 = not said)."""

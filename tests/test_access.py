@@ -50,6 +50,7 @@ async def test_only_the_robots_own_credentials_command_it(make_robot, tmp_path: 
 
     async with robot.node("hwbridge-stand-in") as service:
         twist = service.subscribe(keys.TWIST)
+        car = service.subscribe(keys.CAR)
         pose = service.publisher(keys.ODOM_POSE)
         async with session(robot) as guest:  # no credentials: the read-only guest
             poses = guest.subscribe(keys.ODOM_POSE)
@@ -57,6 +58,7 @@ async def test_only_the_robots_own_credentials_command_it(make_robot, tmp_path: 
             pose.put(m.Pose(stamp=1, x=1.0, y=0.0, theta=0.0))
             assert (await asyncio.wait_for(poses.__anext__(), 3)).x == 1.0
             assert not await reaches(guest, twist, keys.TWIST, m.Twist(v=0.2, w=0.0))
+            assert not await reaches(guest, car, keys.CAR, m.CarDrive(v=0.2, steer=0.3))  # nor drive it as a car
             with pytest.raises(NotReachable):  # nor call its queryables
                 await guest.query(keys.INFO, timeout=1.0)
             token = guest.session.liveliness().declare_token(keys.alive_key(robot.name, "fake"))
@@ -69,6 +71,7 @@ async def test_only_the_robots_own_credentials_command_it(make_robot, tmp_path: 
                 pass
         async with session(robot, own.user, own.password) as owner:
             assert await reaches(owner, twist, keys.TWIST, m.Twist(v=0.1, w=0.0))
+            assert await reaches(owner, car, keys.CAR, m.CarDrive(v=0.1, steer=0.3))
         with pytest.raises(NotReachable):
             async with session(robot, own.user, "not the password"):
                 pass

@@ -66,8 +66,10 @@ async def test_a_hold_refuses_every_motion_command_until_the_ta_releases_it(shar
         assert not bridge.command(0.2, 0.2, "cmd/twist", student(seq, 100.0 + seq))
     motion = await bridge.motion(m.Motion(left=0.2, right=0.2, duration=1.0), student(20, 120.0))
     assert not motion.completed and "held stopped by the lab's TA (see me)" in motion.reason
+    assert not bridge.car(m.CarDrive(v=0.2, steer=0.3), student(21, 121.0))  # nor as a car
     bridge.motion_step(0.2, 0.2, bridge.changes)  # a timed motion's step that had not learnt of the hold
-    assert not driving(shared) and bridge.dropped == 11
+    bridge.car_step(time.monotonic_ns())  # nor the virtual car's next step
+    assert not driving(shared) and bridge.dropped == 12
     held = bridge.hold.message(1)
     assert held.held and held.reason == "see me" and not held.owner_may_release and held.since > 0
     # The owner may not release it: an error reply naming who may; still held.

@@ -594,6 +594,7 @@ async def test_the_tas_credentials_stop_and_do_nothing_else_and_nobody_else_stop
         replies: list[str] = []
         pending = []
         forged = ((keys.TWIST, m.Twist(v=0.3, w=0.0)), (keys.WHEELS_CMD, m.WheelSpeeds(left=0.3, right=0.3)),
+                  (keys.CAR, m.CarDrive(v=0.3, steer=0.2)),
                   (keys.NAV_PATH, m.NavPath(points=[m.Waypoint(x=1.0, y=0.0)])),
                   (keys.HOLD, m.Hold(stamp=1, held=True)), (keys.ODOM_POSE, m.Pose(stamp=1, x=999.0, y=0.0, theta=0.0)))
         for topic, payload in forged:

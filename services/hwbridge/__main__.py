@@ -2,7 +2,7 @@
 
 This is the bus process. It
 
-* takes ``cmd/twist``, ``cmd/wheels``, ``cmd/stop`` and the ``cmd/motion``,
+* takes ``cmd/twist``, ``cmd/wheels``, ``cmd/car``, ``cmd/stop`` and the ``cmd/motion``,
   ``cmd/halt``, ``lab/stop`` and ``cmd/release`` queries on the Zenoh thread that
   delivers them, in the order they arrive, and orders them by what they carry
   (`ordering`, `bridge.Bridge`); ``lab/stop`` may hold the robot stopped (`hold`);
@@ -13,7 +13,9 @@ This is the bus process. It
   both afresh;
 * publishes ``hw/wheels`` (``hwbridge.wheels_rate_hz``), ``hw/loop`` (1 Hz),
   ``hw/battery``, ``io/buttons`` and ``io/dip`` from the state the cycle writes, and
-  ``hw/hold`` at each change and once a second.
+  ``hw/hold`` at each change and once a second;
+* steps the virtual car of ``cmd/car`` (its steering turns at its rate) and publishes
+  ``car/state`` (`car_loop`).
 
 Safety lives in the cycle (deadman, stop latch, limits, EXIT/ALL_STOP on
 exit), so it holds even when this process is slow or gone.
@@ -195,7 +197,8 @@ async def main(config: RobotConfig) -> int:
                 # When the supervisor returns (the board refused, the cycle died), everything else stops too.
                 cycle = tasks.create_task(supervise(config, bridge, node))
                 others = [tasks.create_task(publish(config, bridge, node)),
-                          tasks.create_task(forward_io(node, bridge))]
+                          tasks.create_task(forward_io(node, bridge)),
+                          tasks.create_task(car_loop(config, bridge, node))]
                 node.log.info("hwbridge up: %s, cycle at %g Hz", _board_name(config),
                               config.hwbridge.rate_hz)
 
@@ -214,9 +217,9 @@ async def main(config: RobotConfig) -> int:
 
 
 def command_inputs(node: Node, bridge: Bridge) -> list[Any]:
-    """``cmd/twist``, ``cmd/wheels``, ``cmd/stop``, ``cmd/motion``, ``cmd/halt``, ``lab/stop`` and
-    ``cmd/release``, each taken on the Zenoh thread that delivers it, stamped with its arrival
-    time at once.
+    """``cmd/twist``, ``cmd/wheels``, ``cmd/car``, ``cmd/stop``, ``cmd/motion``, ``cmd/halt``,
+    ``lab/stop`` and ``cmd/release``, each taken on the Zenoh thread that delivers it, stamped
+    with its arrival time at once.
 
     The other inputs go through the event loop, which a flood of messages can keep
     busy for tens of milliseconds: a stop must not wait in that queue, and a motion
@@ -284,6 +287,7 @@ def command_inputs(node: Node, bridge: Bridge) -> list[Any]:
         return bridge.halt(msg, bridge.stop(keys.HALT.name, o))
 
     return [subscribe(keys.TWIST, bridge.twist), subscribe(keys.WHEELS_CMD, bridge.wheels),
+            subscribe(keys.CAR, bridge.car),
             subscribe(keys.STOP, lambda _msg, o: bridge.stop(keys.STOP.name, o)),
             queryable(keys.MOTION, bridge.motion), queryable(keys.HALT, halt),
             queryable(keys.LAB_STOP, bridge.lab_stop), queryable(keys.RELEASE, bridge.release)]
@@ -295,6 +299,27 @@ def origin(msg: m.Command, arrival_ns: int, timestamp: zenoh.Timestamp | None) -
     if timestamp is not None:  # the router's clock (HLC: ns since the epoch, NTP64 inside)
         zenoh_id, zenoh_ns = str(timestamp.get_id()), timestamp.get_time_as_ntp64().as_nanos()
     return Origin.of(arrival_ns, msg.sender, msg.seq, msg.stamp, zenoh_id, zenoh_ns)
+
+
+CAR_IDLE_S = 1.0
+"""``car/state`` while the car stands still and does not steer: once a second (for late subscribers)."""
+
+
+async def car_loop(config: RobotConfig, bridge: Bridge, node: Node) -> None:
+    """The virtual car's steps at ``car.state_rate_hz`` (`Bridge.car_step`: its steering turns at its
+    rate, the wheels follow), and ``car/state``: each step while it moves or steers, else once a second."""
+    pub = node.publisher(keys.CAR_STATE)
+    period = 1.0 / config.car.state_rate_hz
+    last: tuple[float, ...] = ()
+    quiet_until = 0.0
+    while True:
+        state = bridge.car_step(time.monotonic_ns())
+        now = time.monotonic()
+        shown = (state.v, state.steer, state.steer_target, state.x, state.y, state.theta, float(state.driving))
+        if shown != last or now >= quiet_until:
+            pub.put(state)
+            last, quiet_until = shown, now + CAR_IDLE_S
+        await asyncio.sleep(period)
 
 
 IO_PERIOD_S = 0.02

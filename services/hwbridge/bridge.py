@@ -31,17 +31,14 @@ from pathlib import Path
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload, NotConfirmed
 from icefloe.logs import LimitedLog
+from icefloe.motion.car import VirtualCar
+from icefloe.motion.car import Wheels as CarWheels
+from icefloe.motion.diffdrive import limit_wheels, twist_to_wheels
 from icefloe.ordering import CommandOrder, Origin
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
-from .control import (
-    HIST_BINS,
-    MotionProfile,
-    limit_wheels,
-    percentiles,
-    twist_to_wheels,
-)
+from .control import HIST_BINS, MotionProfile, percentiles
 from .hold import HoldState
 from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, STATE_FIELDS, Shared
 
@@ -69,7 +66,12 @@ class Bridge:
         self.limited = LimitedLog(log)
         """Lines about bad or clamped input, a few per second per kind."""
         self.max_speed = config.hwbridge.max_wheel_speed
-        self.order = CommandOrder(round(config.hwbridge.deadman_s * 1e9))
+        self.deadman_ns = round(config.hwbridge.deadman_s * 1e9)
+        self.order = CommandOrder(self.deadman_ns)
+        self.car_model = VirtualCar(config.car, config.geometry.track, self.max_speed, time.monotonic())
+        """The virtual car of ``cmd/car`` (lock held to touch it)."""
+        self.car_since = -1
+        """`changes` when the last ``cmd/car`` drove: the car drives while no change came since."""
         self.left = self.right = 0.0
         self.fresh_ns = 0
         """CLOCK_MONOTONIC ns at which the applied motion command was issued (0 = none yet)."""
@@ -128,6 +130,7 @@ class Bridge:
             if why:
                 self.dropped += 1
             else:
+                self._park_car(origin.arrival_ns)
                 self._drive(left, right, issued)
                 self.changes += 1
         if why:
@@ -136,6 +139,70 @@ class Bridge:
         self.sync()
         self._cut(f"another command on {source}")
         return True
+
+    def car(self, msg: m.CarDrive, origin: Origin) -> bool:
+        """A ``cmd/car``: drive as the virtual car, if `CommandOrder` allows (the same rules as
+        every motion command). Clips the steering to ``car.max_steer`` and slows the car for the
+        wheels' limit, each with a line. Safe to call from any thread. Returns whether it drives."""
+        source = keys.CAR.name
+        with self._lock:
+            issued, why = self.order.motion(origin)
+            if not why and self.hold.held:
+                why = self.hold.refusal()
+            if why:
+                self.dropped += 1
+            else:
+                made = self.car_model.command(msg.v, msg.steer, origin.arrival_ns * 1e-9)
+                wheels = self.car_model.wheels
+                self._drive(wheels.left, wheels.right, issued)
+                self.changes += 1
+                self.car_since = self.changes
+        if why:
+            self.limited.warning(f"order:{source}", f"{source}: not applied: {why}")
+            return False
+        if made.clipped:
+            self.limited.warning(f"clip:{source}", f"{source}: steer {msg.steer:.4g} rad is beyond car.max_steer "
+                                 f"({self.config.car.max_steer:g} rad): clipped to {made.steer_target:.3f} rad")
+        if wheels.slowed:
+            self._say_slowed(wheels)
+        self.sync()
+        self._cut(f"another command on {source}")
+        return True
+
+    def _say_slowed(self, wheels: CarWheels) -> None:
+        self.limited.warning(f"slow:{keys.CAR.name}", f"{keys.CAR.name}: v {wheels.asked:.4g} m/s at steer "
+                             f"{self.car_model.steer:.3f} rad needs a wheel beyond hwbridge.max_wheel_speed "
+                             f"({self.max_speed:g} m/s): slowed to {wheels.v:.3f} m/s, the turn kept")
+
+    def car_step(self, now_ns: int) -> m.CarState:
+        """One step of the virtual car (the event loop, at ``car.state_rate_hz``): the steering turns
+        towards its target and the wheels follow it, while the last ``cmd/car`` still drives (no stop,
+        no other command since, its deadman not passed); returns its state for ``car/state``."""
+        model = self.car_model
+        changed = slowed = False
+        with self._lock:
+            if model.driving:
+                lapsed = self.fresh_ns + self.deadman_ns
+                if self.changes != self.car_since or self.stopped:
+                    model.hold(now_ns * 1e-9)  # not expected: what ended it parked the car already
+                elif now_ns > lapsed:
+                    model.hold(lapsed * 1e-9)  # the cycle stopped the wheels at the deadman
+                elif model.advance(now_ns * 1e-9):
+                    wheels = model.wheels
+                    self.left, self.right, slowed = wheels.left, wheels.right, wheels.slowed
+                    changed = True
+            model.advance(now_ns * 1e-9)
+            state = model.state(time.time_ns())
+        if slowed:
+            self._say_slowed(model.wheels)
+        if changed:
+            self.sync()
+        return state
+
+    def _park_car(self, now_ns: int) -> None:
+        """The car stops driving (lock held): a stop or another kind of command came."""
+        if self.car_model.driving:
+            self.car_model.hold(now_ns * 1e-9)
 
     def _drive(self, left: float, right: float, issued_ns: int) -> None:
         """New targets (lock held): release the latch, the deadman counts from ``issued_ns``."""
@@ -165,6 +232,7 @@ class Bridge:
             _issued, number = self.order.stop(origin, self.stop_seq + 1)
             new = number > self.stop_seq
             if new:
+                self._park_car(origin.arrival_ns)
                 self.stop_seq = number
                 self.left = self.right = 0.0
                 self.stopped = True
@@ -251,6 +319,7 @@ class Bridge:
             if why:
                 self.dropped += 1
             else:
+                self._park_car(origin.arrival_ns)
                 self.changes += 1
                 since = self.changes
         if why:
