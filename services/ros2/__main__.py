@@ -1,0 +1,107 @@
+"""The ros2 service: ``odom`` out and ``cmd_vel`` in, as rmw_zenoh writes them (docs/ros2.md).
+
+    python -m icefloe.services.ros2 --config deploy/robots/sim.toml
+
+A ROS 2 node ``icefloe`` in the robot's namespace (``/<robot>``): its publisher of ``odom``
+(nav_msgs/msg/Odometry, from ``odom/pose``) and its subscription to ``cmd_vel``
+(geometry_msgs/msg/Twist, put on ``cmd/twist`` for hwbridge, which applies the stops and the
+deadman to it as to any command). Liveliness tokens make them appear in ``ros2 node list`` and
+``ros2 topic list -t``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import re
+import time
+
+import zenoh
+
+from icefloe import ros2
+from icefloe.config import RobotConfig
+from icefloe.errors import ConfigError
+from icefloe.runtime import Node, run
+from icefloe.schemas import keys
+
+from .convert import ODOMETRY, TWIST, Frames, Odometry, twist_command
+
+NODE_NAME = "icefloe"
+ROS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+def namespace(config: RobotConfig) -> str:
+    """``ros2.namespace``, else ``/<robot name>``; a robot name ROS 2 cannot take is a ConfigError."""
+    if config.ros2.namespace:
+        return config.ros2.namespace
+    if not ROS_NAME.fullmatch(config.name):
+        raise ConfigError(f"{config.source or config.name}: ros2.namespace: the robot's name {config.name!r} is "
+                          f"not a ROS 2 name (a letter, then letters, digits, _); set ros2.namespace")
+    return f"/{config.name}"
+
+
+async def main(config: RobotConfig) -> None:
+    ns, distro = namespace(config), config.ros2.distro
+    domain = config.ros2.domain_id
+    odom = ros2.Endpoint(domain, ns, ros2.qualified_name(ns, "odom"), ODOMETRY, distro)
+    cmd_vel = ros2.Endpoint(domain, ns, ros2.qualified_name(ns, "cmd_vel"), TWIST, distro)
+    odometry = Odometry(distro, Frames(config.ros2.odom_frame, config.ros2.base_frame))
+    gid = os.urandom(ros2.GID_LEN)  # rmw_zenoh's GIDs are as opaque: unique per publisher
+    loop = asyncio.get_running_loop()
+    commands: asyncio.Queue[tuple[bytes, bytes | None]] = asyncio.Queue(maxsize=64)
+
+    async with Node("ros2", config) as node:
+        session_id = str(node.session.zid())
+        liveliness = node.session.liveliness()
+        # Held until the session closes (which withdraws them): ROS 2's graph sees the node while it runs.
+        tokens = [liveliness.declare_token(token) for token in (
+            ros2.node_token(domain, session_id, 0, ns, NODE_NAME),
+            ros2.endpoint_token(odom, "MP", session_id, 0, 1, NODE_NAME),
+            ros2.endpoint_token(cmd_vel, "MS", session_id, 0, 2, NODE_NAME))]
+        publisher = node.session.declare_publisher(odom.data_key, congestion_control=zenoh.CongestionControl.DROP)
+        twist = node.publisher(keys.TWIST)
+
+        def on_cmd_vel(sample: zenoh.Sample) -> None:  # our reader thread: never block
+            key = str(sample.key_expr)
+            if key != cmd_vel.data_key:  # put on a wildcard, e.g. 0/*/cmd_vel/**: not ours alone
+                node.limited.warning("cmd_vel", "dropped a cmd_vel put on %s: commands only on %s", key,
+                                     cmd_vel.data_key)
+                return
+            attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
+            item = (sample.payload.to_bytes(), attachment)
+            loop.call_soon_threadsafe(_offer, item)
+
+        def _offer(item: tuple[bytes, bytes | None]) -> None:
+            if commands.full():  # a flood: keep the newest, a command is stale behind 64 others
+                commands.get_nowait()
+                node.limited.warning("cmd_vel", "cmd_vel: more than %d commands waiting; dropped the oldest",
+                                     commands.maxsize)
+            commands.put_nowait(item)
+
+        node.on_samples(cmd_vel.data_key, on_cmd_vel)
+
+        async def drive() -> None:
+            while True:
+                payload, attachment = await commands.get()
+                try:
+                    twist.put(twist_command(payload, attachment, distro))
+                except ValueError as exc:
+                    node.limited.warning("cmd_vel", "dropped a cmd_vel on %s: %s", cmd_vel.data_key, exc)
+
+        async def publish_odom() -> None:
+            seq = 0
+            async for pose in node.subscribe(keys.ODOM_POSE):
+                seq += 1
+                attachment = ros2.Attachment(seq, time.time_ns(), gid).encode()  # when published, as rmw_zenoh
+                publisher.put(odometry.cdr(pose), attachment=attachment)
+
+        node.log.info("ROS 2 (%s, domain %d): publishing %s, subscribed to %s", distro, domain,
+                      odom.data_key, cmd_vel.data_key)
+        async with asyncio.TaskGroup() as tasks:
+            tasks.create_task(drive())
+            tasks.create_task(publish_odom())
+        del tokens
+
+
+if __name__ == "__main__":
+    run(main)
