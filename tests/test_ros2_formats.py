@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import struct
+from pathlib import Path
 
 import pytest
 
@@ -116,3 +117,25 @@ def test_cmd_vel_becomes_an_ordered_command() -> None:
 def test_bad_cmd_vel_is_refused_with_a_reason(payload, attachment, why) -> None:
     with pytest.raises(ValueError, match=why):
         twist_command(payload, attachment, "jazzy")
+
+
+def test_the_namespace_and_a_bad_ros2_config(tmp_path) -> None:
+    from icefloe import config as config_mod
+    from icefloe.errors import ConfigError
+    from icefloe.services.ros2.convert import ros_namespace
+
+    sim = Path(__file__).parents[1] / "deploy" / "robots" / "sim.toml"
+
+    def load(text: str):
+        path = tmp_path / "r.toml"
+        path.write_text(f'extends = "{sim}"\n{text}\n')
+        return config_mod.load(path)
+
+    assert ros_namespace(load('name = "penguin1"')) == "/penguin1"
+    assert ros_namespace(load('name = "pen-1"\n[ros2]\nnamespace = "/lab/pen1"')) == "/lab/pen1"
+    with pytest.raises(ConfigError, match=r"ros2\.namespace: the robot's name 'pen-1' is not a ROS 2 name"):
+        ros_namespace(load('name = "pen-1"'))
+    for bad, field in (('distro = "iron"', "ros2.distro"), ("domain_id = 233", "ros2.domain_id"),
+                       ('namespace = "lab/*"', "ros2.namespace"), ('odom_frame = "a b"', "ros2.odom_frame")):
+        with pytest.raises(ConfigError, match=field):
+            load(f"[ros2]\n{bad}")

@@ -13,35 +13,22 @@ from __future__ import annotations
 
 import asyncio
 import os
-import re
 import time
 
 import zenoh
 
 from icefloe import ros2
 from icefloe.config import RobotConfig
-from icefloe.errors import ConfigError
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 
-from .convert import ODOMETRY, TWIST, Frames, Odometry, twist_command
+from .convert import ODOMETRY, TWIST, Frames, Odometry, ros_namespace, twist_command
 
 NODE_NAME = "icefloe"
-ROS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
-
-
-def namespace(config: RobotConfig) -> str:
-    """``ros2.namespace``, else ``/<robot name>``; a robot name ROS 2 cannot take is a ConfigError."""
-    if config.ros2.namespace:
-        return config.ros2.namespace
-    if not ROS_NAME.fullmatch(config.name):
-        raise ConfigError(f"{config.source or config.name}: ros2.namespace: the robot's name {config.name!r} is "
-                          f"not a ROS 2 name (a letter, then letters, digits, _); set ros2.namespace")
-    return f"/{config.name}"
 
 
 async def main(config: RobotConfig) -> None:
-    ns, distro = namespace(config), config.ros2.distro
+    ns, distro = ros_namespace(config), config.ros2.distro
     domain = config.ros2.domain_id
     odom = ros2.Endpoint(domain, ns, ros2.qualified_name(ns, "odom"), ODOMETRY, distro)
     cmd_vel = ros2.Endpoint(domain, ns, ros2.qualified_name(ns, "cmd_vel"), TWIST, distro)

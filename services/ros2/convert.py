@@ -3,16 +3,30 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from icefloe import ros2
+from icefloe.config import RobotConfig
+from icefloe.errors import ConfigError
 from icefloe.schemas import messages as m
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 TWIST = "geometry_msgs/msg/Twist"
+ROS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+def ros_namespace(config: RobotConfig) -> str:
+    """``ros2.namespace``, else ``/<robot name>``; a robot name ROS 2 cannot take is a ConfigError."""
+    if config.ros2.namespace:
+        return config.ros2.namespace
+    if not ROS_NAME.fullmatch(config.name):
+        raise ConfigError(f"{config.source or config.name}: ros2.namespace: the robot's name {config.name!r} is "
+                          f"not a ROS 2 name (a letter, then letters, digits, _); set ros2.namespace")
+    return f"/{config.name}"
 
 
 @dataclass(frozen=True)
