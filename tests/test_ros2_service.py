@@ -1,7 +1,9 @@
 """The ros2 service as a real process on the simulated robot, seen and driven by an independent
 rmw_zenoh client (zenoh-ros2-sdk, tests/ros2_client.py, a process of its own): the graph lists the
 robot's topics with their types, ``odom`` arrives as nav_msgs/msg/Odometry, ``cmd_vel`` moves the
-simulator's truth, and a stop on the bus stops it; hostile ``cmd_vel`` puts move nothing."""
+simulator's truth, the deadman stands it when the client goes quiet, and a stop on the bus stops
+it; hostile ``cmd_vel`` puts (late, replayed, wildcard, bad bytes, bad attachment, another robot's
+namespace, a flood) move nothing. Measured 7-9 s (load 3), the machine's other work beside it."""
 
 from __future__ import annotations
 
@@ -97,11 +99,24 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
                 raise AssertionError(f"the truth did not move: {await sim_state(node)}\n{service.output[-2000:]}")
             await wait_for(lambda: client.of("odom")[-1]["x"] > odom["x"] + 0.03, timeout=20)
 
-            # A stop on the bus stops it (the client quiet first: a ROS 2 command after the stop would
-            # rightly drive again). Stopped means the wheels stand.
+            # The client goes quiet: the deadman stands the wheels, with no stop.
+            client.send("quiet")
+            quiet = await still(node)
+
+            async def moved_from(x: float) -> None:
+                for _ in range(300):
+                    if (await sim_state(node)).x > x + 0.03:
+                        return
+                    await asyncio.sleep(0.1)
+                raise AssertionError(f"the truth did not move: {await sim_state(node)}\n{service.output[-2000:]}")
+
+            # Driving again, then a stop on the bus stops it (the client quiet first: a ROS 2 command
+            # issued after the stop would rightly drive again). Stopped means the wheels stand.
+            client.send("drive 0.15 0.0")
+            await moved_from(quiet.x)
             client.send("quiet")
             node.publisher(keys.STOP).put(node.command(m.Stop))
-            stopped = await still(node)
+            await still(node)
 
             # Hostile cmd_vel puts move nothing, and the service says why and keeps running.
             ros = node.session
@@ -127,9 +142,14 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
                     fast, attachment=ros2.Attachment(3, time.time_ns(), b"z" * 16).encode())
             await wait_for(lambda: "wildcard" in service.output or "commands only on" in service.output, 20)
             await wait_for(lambda: "attachment of 5 bytes" in service.output, 20)
+            # A flood of bad cmd_vel: a few lines a second, not one per sample, and the service runs on.
+            lines_before = service.output.count("dropped a cmd_vel")
+            for i in range(2000):
+                ros.put(data_key, b"\x00\x01\x00\x00" + bytes([i % 256]))
             await asyncio.sleep(1.0)  # what a refused command could have done: it would show in 1 s
             after = await still(node)
             assert abs(after.x - stopped.x) < 1e-3, (stopped, after)
             assert service.alive(), service.output[-2000:]
+            assert service.output.count("dropped a cmd_vel") - lines_before < 40, service.output[-3000:]
     finally:
         client.close()
