@@ -1,9 +1,10 @@
-"""The ros2 service: ``odom`` out and ``cmd_vel`` in, as rmw_zenoh writes them (docs/ros2.md).
+"""The ros2 service: the robot's state out (``odom``, ...) and ``cmd_vel`` in, as rmw_zenoh writes
+them (docs/ros2.md).
 
     python -m icefloe.services.ros2 --config deploy/robots/sim.toml
 
-A ROS 2 node ``icefloe`` in the robot's namespace (``/<robot>``): its publisher of ``odom``
-(nav_msgs/msg/Odometry, from ``odom/pose``) and its subscription to ``cmd_vel``
+A ROS 2 node ``icefloe`` in the robot's namespace (``/<robot>``): a publisher for each of
+`convert.outputs` (``odom``: nav_msgs/msg/Odometry from ``odom/pose``, ...) and its subscription to ``cmd_vel``
 (geometry_msgs/msg/Twist, put on ``cmd/twist`` for hwbridge, which applies the stops and the
 deadman to it as to any command). Liveliness tokens make them appear in ``ros2 node list`` and
 ``ros2 topic list -t``.
@@ -12,6 +13,7 @@ deadman to it as to any command). Liveliness tokens make them appear in ``ros2 n
 from __future__ import annotations
 
 import asyncio
+import itertools
 import os
 import time
 
@@ -22,7 +24,7 @@ from icefloe.config import RobotConfig
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 
-from .convert import ODOMETRY, TWIST, Frames, Odometry, ros_namespace, twist_command
+from .convert import TWIST, Output, outputs, ros_namespace, twist_command
 
 NODE_NAME = "icefloe"
 
@@ -30,10 +32,9 @@ NODE_NAME = "icefloe"
 async def main(config: RobotConfig) -> None:
     ns, distro = ros_namespace(config), config.ros2.distro
     domain = config.ros2.domain_id
-    odom = ros2.Endpoint(domain, ns, ros2.qualified_name(ns, "odom"), ODOMETRY, distro)
+    out = [(output, ros2.Endpoint(domain, ns, ros2.qualified_name(ns, output.topic), output.ros_type, distro))
+           for output in outputs(config)]
     cmd_vel = ros2.Endpoint(domain, ns, ros2.qualified_name(ns, "cmd_vel"), TWIST, distro)
-    odometry = Odometry(distro, Frames(config.ros2.odom_frame, config.ros2.base_frame))
-    gid = os.urandom(ros2.GID_LEN)  # rmw_zenoh's GIDs are as opaque: unique per publisher
     loop = asyncio.get_running_loop()
     commands: asyncio.Queue[tuple[bytes, bytes | None]] = asyncio.Queue(maxsize=64)
 
@@ -43,9 +44,9 @@ async def main(config: RobotConfig) -> None:
         # Held until the session closes (which withdraws them): ROS 2's graph sees the node while it runs.
         tokens = [liveliness.declare_token(token) for token in (
             ros2.node_token(domain, session_id, 0, ns, NODE_NAME),
-            ros2.endpoint_token(odom, "MP", session_id, 0, 1, NODE_NAME),
-            ros2.endpoint_token(cmd_vel, "MS", session_id, 0, 2, NODE_NAME))]
-        publisher = node.session.declare_publisher(odom.data_key, congestion_control=zenoh.CongestionControl.DROP)
+            *(ros2.endpoint_token(endpoint, "MP", session_id, 0, 1 + i, NODE_NAME)
+              for i, (_, endpoint) in enumerate(out)),
+            ros2.endpoint_token(cmd_vel, "MS", session_id, 0, 1 + len(out), NODE_NAME))]
         twist = node.publisher(keys.TWIST)
 
         def on_cmd_vel(sample: zenoh.Sample) -> None:  # our reader thread: never block
@@ -75,18 +76,29 @@ async def main(config: RobotConfig) -> None:
                 except ValueError as exc:
                     node.limited.warning("cmd_vel", "dropped a cmd_vel on %s: %s", cmd_vel.data_key, exc)
 
-        async def publish_odom() -> None:
-            seq = 0
-            async for pose in node.subscribe(keys.ODOM_POSE):
-                seq += 1
-                attachment = ros2.Attachment(seq, time.time_ns(), gid).encode()  # when published, as rmw_zenoh
-                publisher.put(odometry.cdr(pose), attachment=attachment)
+        async def publish(key: keys.Topic, these: list[tuple[Output, ros2.Endpoint]]) -> None:
+            """Each message of ``key`` as each of its outputs; a GID and a sequence per publisher (rmw_zenoh's
+            GIDs are as opaque: unique per publisher)."""
+            publishers = [(output, node.session.declare_publisher(
+                endpoint.data_key, congestion_control=zenoh.CongestionControl.DROP), os.urandom(ros2.GID_LEN),
+                itertools.count(1)) for output, endpoint in these]
+            async for msg in node.subscribe(key):
+                for output, publisher, gid, seq in publishers:
+                    message = output.message(msg)
+                    if message is None:
+                        continue
+                    attachment = ros2.Attachment(next(seq), time.time_ns(), gid).encode()  # when published
+                    publisher.put(ros2.to_cdr(message, output.ros_type, distro), attachment=attachment)
 
+        by_key: dict[keys.Topic, list[tuple[Output, ros2.Endpoint]]] = {}
+        for output, endpoint in out:
+            by_key.setdefault(output.key, []).append((output, endpoint))
         node.log.info("ROS 2 (%s, domain %d): publishing %s, subscribed to %s", distro, domain,
-                      odom.data_key, cmd_vel.data_key)
+                      ", ".join(endpoint.data_key for _, endpoint in out), cmd_vel.data_key)
         async with asyncio.TaskGroup() as tasks:
             tasks.create_task(drive())
-            tasks.create_task(publish_odom())
+            for key, these in by_key.items():
+                tasks.create_task(publish(key, these))
         del tokens
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -12,6 +13,7 @@ import numpy as np
 from icefloe import ros2
 from icefloe.config import RobotConfig
 from icefloe.errors import ConfigError
+from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -63,6 +65,28 @@ class Odometry:
 
     def cdr(self, pose: m.Pose) -> bytes:
         return ros2.to_cdr(self.message(pose), ODOMETRY, self.distro)
+
+
+@dataclass(frozen=True)
+class Output:
+    """One ROS 2 topic the service publishes, made from one icefloe key's messages. The service
+    publishes it, ``icefloe record --ros2`` records it: both go through this table."""
+
+    key: keys.Topic
+    """The icefloe key it is made from (several outputs may share one: ``odom`` and ``tf``)."""
+    topic: str
+    """Its ROS 2 name relative to the robot's namespace, e.g. ``odom``."""
+    ros_type: str
+    """Its ROS 2 type, e.g. ``nav_msgs/msg/Odometry``."""
+    message: Callable[[Any], Any | None]
+    """An icefloe message to the ROS 2 message (a rosbags object), or None: nothing to publish for it."""
+
+
+def outputs(config: RobotConfig) -> list[Output]:
+    """Every ROS 2 topic the robot's ``ros2`` config publishes, in the order the service declares them."""
+    distro = config.ros2.distro
+    odometry = Odometry(distro, Frames(config.ros2.odom_frame, config.ros2.base_frame))
+    return [Output(keys.ODOM_POSE, "odom", ODOMETRY, odometry.message)]
 
 
 def twist_command(payload: bytes, attachment: bytes | None, distro: ros2.Distro) -> m.Twist:
