@@ -427,7 +427,18 @@ class Ros2(Section):
     odom_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "odom"
     """``header.frame_id`` of ``odom``."""
     base_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "base_link"
-    """``child_frame_id`` of ``odom``."""
+    """``child_frame_id`` of ``odom`` and ``tf``."""
+    map_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "map"
+    """``header.frame_id`` of ``map``, ``pose`` and ``external_pose``: the world frame (the world map's)."""
+    camera_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "camera_optical_frame"
+    """``header.frame_id`` of the camera's topics: OpenCV's axes (x right, y down, z forward), which
+    are ROS's optical frame (REP 103)."""
+    images: Literal["off", "image", "frames"] = "image"
+    """``camera/image_raw/compressed``: "image" = the JPEGs of ``camera/image`` (``camera.image_rate_hz``,
+    2 a second, made anyway); "frames" = every captured frame (``camera/frames``: the camera then
+    encodes each one, all the time); "off" = none (``camera/camera_info`` still follows ``camera/image``)."""
+    map_period_s: Seconds = 5.0
+    """How often ``map`` is published again, s (volatile QoS: a ROS 2 user who joins later gets the next)."""
 
 
 class Lens(Section):

@@ -1,13 +1,15 @@
-"""The ros2 service: the robot's state out (``odom``, ...) and ``cmd_vel`` in, as rmw_zenoh writes
-them (docs/ros2.md).
+"""The ros2 service: the robot's state out (``odom``, ``tf``, ``joint_states``, ...) and ``cmd_vel``
+in, as rmw_zenoh writes them (docs/ros2.md).
 
     python -m icefloe.services.ros2 --config deploy/robots/sim.toml
 
 A ROS 2 node ``icefloe`` in the robot's namespace (``/<robot>``): a publisher for each of
-`convert.outputs` (``odom``: nav_msgs/msg/Odometry from ``odom/pose``, ...) and its subscription to ``cmd_vel``
+`convert.outputs` (``odom``: nav_msgs/msg/Odometry from ``odom/pose``, ...; ``map`` from the grid
+service's answer, asked again every ``ros2.map_period_s``) and its subscription to ``cmd_vel``
 (geometry_msgs/msg/Twist, put on ``cmd/twist`` for hwbridge, which applies the stops and the
 deadman to it as to any command). Liveliness tokens make them appear in ``ros2 node list`` and
-``ros2 topic list -t``.
+``ros2 topic list -t``. A message that cannot be turned into its ROS 2 form is left out with one
+rate-limited line naming the key and the field; the service runs on.
 """
 
 from __future__ import annotations
@@ -16,11 +18,14 @@ import asyncio
 import itertools
 import os
 import time
+from collections.abc import Callable
+from typing import Any
 
 import zenoh
 
 from icefloe import ros2
 from icefloe.config import RobotConfig
+from icefloe.errors import BadPayload, NotReachable
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 
@@ -76,19 +81,51 @@ async def main(config: RobotConfig) -> None:
                 except ValueError as exc:
                     node.limited.warning("cmd_vel", "dropped a cmd_vel on %s: %s", cmd_vel.data_key, exc)
 
+        def declare(output: Output, endpoint: ros2.Endpoint) -> Callable[[Any], None]:
+            """A publisher of one output: its own GID and sequence (rmw_zenoh's GIDs are as opaque: unique
+            per publisher). The function it returns publishes one icefloe message, if it makes one."""
+            publisher = node.session.declare_publisher(endpoint.data_key,
+                                                       congestion_control=zenoh.CongestionControl.DROP)
+            gid, seq = os.urandom(ros2.GID_LEN), itertools.count(1)
+
+            def put(msg: Any) -> None:
+                try:
+                    payload = output.message(msg)
+                    if payload is None:
+                        return
+                    cdr = ros2.to_cdr(payload, output.ros_type, distro)
+                except (ValueError, TypeError, OverflowError) as exc:  # a message we cannot turn: the next may do
+                    node.limited.warning(output.topic, "not published on %s: a %s on %s: %s", endpoint.topic,
+                                         output.key.type.__name__, node.key(output.key), exc)
+                    return
+                attachment = ros2.Attachment(next(seq), time.time_ns(), gid).encode()  # when published
+                publisher.put(cdr, attachment=attachment)
+
+            return put
+
         async def publish(key: keys.Topic, these: list[tuple[Output, ros2.Endpoint]]) -> None:
-            """Each message of ``key`` as each of its outputs; a GID and a sequence per publisher (rmw_zenoh's
-            GIDs are as opaque: unique per publisher)."""
-            publishers = [(output, node.session.declare_publisher(
-                endpoint.data_key, congestion_control=zenoh.CongestionControl.DROP), os.urandom(ros2.GID_LEN),
-                itertools.count(1)) for output, endpoint in these]
+            """Each message of ``key`` as each of its outputs."""
+            puts = [declare(output, endpoint) for output, endpoint in these]
             async for msg in node.subscribe(key):
-                for output, publisher, gid, seq in publishers:
-                    message = output.message(msg)
-                    if message is None:
-                        continue
-                    attachment = ros2.Attachment(next(seq), time.time_ns(), gid).encode()  # when published
-                    publisher.put(ros2.to_cdr(message, output.ros_type, distro), attachment=attachment)
+                for put in puts:
+                    put(msg)
+
+        async def ask(output: Output, endpoint: ros2.Endpoint) -> None:
+            """A queryable's answer (the grid service's ``map/grid``), asked every ``output.period`` s:
+            volatile QoS keeps no sample for a ROS 2 user who joins later, so it comes again."""
+            put = declare(output, endpoint)
+            said = False
+            while True:
+                try:
+                    put(await node.query(output.key, output.request, timeout=2.0))
+                except BadPayload as exc:  # an answer that is no OccupancyGrid: asked again next time
+                    node.limited.warning(output.topic, "not published on %s: %s", endpoint.topic, exc)
+                except NotReachable as exc:
+                    if not said:  # once: the grid service may start after us, or not at all
+                        node.log.warning("%s: nothing yet for %s, asking every %g s: %s", node.key(output.key),
+                                         endpoint.topic, output.period, exc)
+                        said = True
+                await asyncio.sleep(output.period)
 
         by_key: dict[keys.Topic, list[tuple[Output, ros2.Endpoint]]] = {}
         for output, endpoint in out:
@@ -98,7 +135,11 @@ async def main(config: RobotConfig) -> None:
         async with asyncio.TaskGroup() as tasks:
             tasks.create_task(drive())
             for key, these in by_key.items():
-                tasks.create_task(publish(key, these))
+                if key.kind == "query":
+                    for output, endpoint in these:
+                        tasks.create_task(ask(output, endpoint))
+                else:
+                    tasks.create_task(publish(key, these))
         del tokens
 
 

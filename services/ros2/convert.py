@@ -16,6 +16,8 @@ from icefloe.errors import ConfigError
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
+from . import camera, state
+
 ODOMETRY = "nav_msgs/msg/Odometry"
 TWIST = "geometry_msgs/msg/Twist"
 ROS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
@@ -73,20 +75,50 @@ class Output:
     publishes it, ``icefloe record --ros2`` records it: both go through this table."""
 
     key: keys.Topic
-    """The icefloe key it is made from (several outputs may share one: ``odom`` and ``tf``)."""
+    """The icefloe key it is made from (several outputs may share one: ``odom`` and ``tf``). For a
+    queryable (``map/grid``: ``key.kind == "query"``) its answer, asked every `period` s."""
     topic: str
     """Its ROS 2 name relative to the robot's namespace, e.g. ``odom``."""
     ros_type: str
     """Its ROS 2 type, e.g. ``nav_msgs/msg/Odometry``."""
     message: Callable[[Any], Any | None]
-    """An icefloe message to the ROS 2 message (a rosbags object), or None: nothing to publish for it."""
+    """An icefloe message to the ROS 2 message (a rosbags object), or None: nothing to publish for it.
+    Raises ValueError naming the field of a message it cannot turn."""
+    period: float = 0.0
+    """For a queryable `key` only: ask it this often, s (0 for a key that is published)."""
+    request: m.Message | None = None
+    """For a queryable `key` only: what to ask it."""
 
 
 def outputs(config: RobotConfig) -> list[Output]:
-    """Every ROS 2 topic the robot's ``ros2`` config publishes, in the order the service declares them."""
-    distro = config.ros2.distro
-    odometry = Odometry(distro, Frames(config.ros2.odom_frame, config.ros2.base_frame))
-    return [Output(keys.ODOM_POSE, "odom", ODOMETRY, odometry.message)]
+    """Every ROS 2 topic the robot's ``ros2`` config publishes, in the order the service declares them.
+
+    ``camera/image_raw/compressed`` follows ``ros2.images`` (not there when "off"); ``map`` is there
+    only when the robot runs the grid service (``services`` names "grid")."""
+    ros, distro = config.ros2, config.ros2.distro
+    odometry = Odometry(distro, Frames(ros.odom_frame, ros.base_frame))
+    images = keys.FRAMES if ros.images == "frames" else keys.IMAGE
+    table = [
+        Output(keys.ODOM_POSE, "odom", ODOMETRY, odometry.message),
+        Output(keys.ODOM_POSE, "tf", state.TF, state.Transform(distro, ros.odom_frame, ros.base_frame).message),
+        Output(keys.WHEELS, "joint_states", state.JOINT_STATE,
+               state.WheelJoints(distro, config.geometry.wheel_diameter, config.geometry.ticks_per_rev).message),
+        Output(keys.BATTERY, "battery_state", state.BATTERY_STATE, state.Battery(distro).message),
+        Output(keys.LOC_POSE, "pose", state.POSE_WITH_COVARIANCE, state.MapPose(distro, ros.map_frame).message),
+        Output(keys.EXTLOC_POSE, "external_pose", state.POSE_WITH_COVARIANCE,
+               state.MapPose(distro, ros.map_frame).message),
+        Output(keys.LANDMARKS, "camera/landmarks", camera.MARKER_ARRAY,
+               camera.LandmarkMarkers(distro, ros.camera_frame, ros.base_frame, config.camera.marker_size).message),
+        Output(images, "camera/camera_info", camera.CAMERA_INFO,
+               camera.CameraInfo(distro, ros.camera_frame, config.camera).message),
+    ]
+    if ros.images != "off":
+        table.append(Output(images, "camera/image_raw/compressed", camera.COMPRESSED_IMAGE,
+                            camera.CompressedImage(distro, ros.camera_frame).message))
+    if "grid" in config.services:
+        table.append(Output(keys.MAP_GRID, "map", state.OCCUPANCY_GRID, state.Map(distro, ros.map_frame).message,
+                            period=ros.map_period_s, request=m.GridRequest()))
+    return table
 
 
 def twist_command(payload: bytes, attachment: bytes | None, distro: ros2.Distro) -> m.Twist:
