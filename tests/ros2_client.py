@@ -4,10 +4,12 @@ rmw_zenoh client, not icefloe's code) in a process of its own.
     python tests/ros2_client.py PORT NAMESPACE
 
 Prints one JSON line per event on stdout: ``{"keys": ...}`` once, ``{"odom": {...}}`` per Odometry
-received. Reads commands on stdin, one per line: ``graph`` prints ``{"graph": [[topic, [types]], ...]}``
-(what ``ros2 topic list -t`` shows); ``drive V W`` publishes geometry_msgs/msg/Twist on ``cmd_vel``
-at 10 Hz; ``quiet`` stops publishing; ``quit`` exits. The message definitions are
-common_interfaces' (tests/ros2_msgs/, as a ROS 2 install has them); the SDK computes its own
+received, and likewise ``tf``, ``joint_states``, ``battery_state``, ``image`` (the compressed
+image) and ``camera_info`` per message of theirs. Reads commands on stdin, one per line:
+``graph`` prints ``{"graph": [[topic, [types]], ...]}`` (what ``ros2 topic list -t`` shows);
+``drive V W`` publishes geometry_msgs/msg/Twist on ``cmd_vel`` at 10 Hz; ``quiet`` stops
+publishing; ``quit`` exits. The message definitions are common_interfaces' fields
+(tests/ros2_msgs/, as a ROS 2 install has them, comments left out); the SDK computes its own
 type hashes from them.
 """
 
@@ -41,9 +43,40 @@ def main() -> None:
                   "x": msg.pose.pose.position.x, "y": msg.pose.pose.position.y,
                   "theta": math.atan2(2 * q.w * q.z, 1 - 2 * q.z * q.z), "v": msg.twist.twist.linear.x})
 
+    def on_tf(msg) -> None:
+        (moved,) = msg.transforms
+        say(tf={"frame": moved.header.frame_id, "child": moved.child_frame_id, "sec": moved.header.stamp.sec,
+                "x": moved.transform.translation.x, "qz": moved.transform.rotation.z,
+                "qw": moved.transform.rotation.w})
+
+    def on_joints(msg) -> None:
+        say(joint_states={"names": list(msg.name), "position": [float(v) for v in msg.position],
+                          "velocity": [float(v) for v in msg.velocity], "sec": msg.header.stamp.sec})
+
+    def on_battery(msg) -> None:
+        say(battery_state={"voltage": float(msg.voltage), "current": float(msg.current),
+                           "percentage_is_nan": math.isnan(msg.percentage), "status": msg.power_supply_status,
+                           "sec": msg.header.stamp.sec})
+
+    def on_image(msg) -> None:
+        say(image={"format": msg.format, "size": len(msg.data), "head": bytes(msg.data[:4]).hex(),
+                   "frame": msg.header.frame_id, "stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec]})
+
+    def on_info(msg) -> None:
+        say(camera_info={"width": msg.width, "height": msg.height, "k": [float(v) for v in msg.k],
+                         "model": msg.distortion_model, "frame": msg.header.frame_id,
+                         "stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec]})
+
     sub = ROS2Subscriber(f"{namespace}/odom", "nav_msgs/msg/Odometry", on_odom, node_name="student_sub", **where)
+    state = [ROS2Subscriber(f"{namespace}/{topic}", ros_type, callback, node_name="student_sub", **where)
+             for topic, ros_type, callback in (
+                 ("tf", "tf2_msgs/msg/TFMessage", on_tf),
+                 ("joint_states", "sensor_msgs/msg/JointState", on_joints),
+                 ("battery_state", "sensor_msgs/msg/BatteryState", on_battery),
+                 ("camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage", on_image),
+                 ("camera/camera_info", "sensor_msgs/msg/CameraInfo", on_info))]
     pub = ROS2Publisher(f"{namespace}/cmd_vel", "geometry_msgs/msg/Twist", node_name="student_drive", **where)
-    say(keys={"odom": sub.keyexpr, "cmd_vel": pub.keyexpr})
+    say(keys={"odom": sub.keyexpr, "cmd_vel": pub.keyexpr, **{s.topic: s.keyexpr for s in state}})
 
     speed: list[float] | None = None
     lock = threading.Lock()
@@ -71,7 +104,8 @@ def main() -> None:
         elif words[:1] == ["quit"]:
             break
         say(done=line.strip())
-    sub.close()
+    for subscriber in (sub, *state):
+        subscriber.close()
     pub.close()
 
 

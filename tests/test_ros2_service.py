@@ -24,6 +24,13 @@ from icefloe.schemas import messages as m
 from icefloe.services.ros2.convert import TWIST
 
 CLIENT = Path(__file__).parent / "ros2_client.py"
+STATE_TOPICS = {"tf": "tf2_msgs/msg/TFMessage", "joint_states": "sensor_msgs/msg/JointState",
+                "battery_state": "sensor_msgs/msg/BatteryState", "pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+                "external_pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+                "camera/landmarks": "visualization_msgs/msg/MarkerArray",
+                "camera/camera_info": "sensor_msgs/msg/CameraInfo",
+                "camera/image_raw/compressed": "sensor_msgs/msg/CompressedImage"}
+"""The topics besides odom and cmd_vel that the graph lists (map only where the grid service runs)."""
 
 
 class Client:
@@ -68,7 +75,7 @@ class Client:
 
 
 async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> None:
-    for service in ("sim", "hwbridge", "odometry"):
+    for service in ("sim", "hwbridge", "odometry", "power"):
         robot.start(service)
     service = robot.start("ros2")
     namespace = f"/{robot.name}"
@@ -87,6 +94,27 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
             graph = dict((await client.wait("graph"))[0])
             assert graph[f"{namespace}/odom"] == ["nav_msgs/msg/Odometry"]
             assert graph[f"{namespace}/cmd_vel"] == ["geometry_msgs/msg/Twist"]
+            assert {topic: graph.get(f"{namespace}/{topic}") for topic in STATE_TOPICS} == \
+                {topic: [ros_type] for topic, ros_type in STATE_TOPICS.items()}
+
+            # the state topics, each decoded by the client: tf and joint_states from the simulated
+            # wheels (hwbridge, odometry), battery_state from the power service
+            tf = (await client.wait("tf"))[-1]
+            assert (tf["frame"], tf["child"]) == ("odom", "base_link") and abs(tf["sec"] - time.time()) < 60
+            joints = (await client.wait("joint_states"))[-1]
+            assert joints["names"] == ["left_wheel_joint", "right_wheel_joint"]
+            battery = (await client.wait("battery_state"))[-1]
+            assert 6.0 < battery["voltage"] < 9.0 and battery["percentage_is_nan"], battery
+            # the camera's topics from its key (no camera process: it renders, which costs seconds here)
+            jpeg = b"\xff\xd8\xff\xe0" + bytes(1000) + b"\xff\xd9"
+            shot = m.Image(stamp=time.time_ns(), width=320, height=240, data=jpeg)
+            node.publisher(keys.IMAGE).put(shot)
+            image, info = (await client.wait("image"))[-1], (await client.wait("camera_info"))[-1]
+            assert (image["format"], image["size"], image["head"], image["frame"]) == \
+                ("jpeg", len(jpeg), "ffd8ffe0", "camera_optical_frame")
+            assert info["stamp"] == image["stamp"] == list(divmod(shot.stamp, 1_000_000_000))
+            assert (info["width"], info["height"], info["model"]) == (320, 240, "plumb_bob")
+            assert info["k"][0] == 250.0  # sim.toml's focal_px 500 at 640x480, for the 320x240 image
 
             # cmd_vel drives the simulated robot; odom follows.
             start = await sim_state(node)
@@ -98,6 +126,9 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
             else:
                 raise AssertionError(f"the truth did not move: {await sim_state(node)}\n{service.output[-2000:]}")
             await wait_for(lambda: client.of("odom")[-1]["x"] > odom["x"] + 0.03, timeout=20)
+            await wait_for(lambda: client.of("tf")[-1]["x"] > tf["x"] + 0.03, timeout=20)
+            await wait_for(lambda: all(p > p0 + 0.5 for p, p0 in zip(client.of("joint_states")[-1]["position"],
+                                                                      joints["position"], strict=True)), timeout=20)
 
             # The client goes quiet: the deadman stands the wheels, with no stop.
             client.send("quiet")
@@ -119,7 +150,7 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
             await still(node)
 
             # Hostile cmd_vel puts move nothing, and the service says why and keeps running.
-            ros = node.session
+            ros, wheels = node.session, node.latest(keys.WHEELS)
             twist = ros2.typestore("jazzy").types
             vec = twist["geometry_msgs/msg/Vector3"]
             fast = ros2.to_cdr(twist[TWIST](linear=vec(x=0.3, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=0.0)),
@@ -130,9 +161,12 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
             gid = b"g" * 16
             issued = time.time_ns()
             ros.put(data_key, fast, attachment=ros2.Attachment(1, issued, gid).encode())
+            # The stop only once hwbridge drives that command: it goes through the ros2 service, the stop
+            # straight to hwbridge, and a command first heard after the stop is taken as issued after it.
+            await wait_for(lambda: (w := wheels.get()) is not None and w.target_left > 0.1, 20)
             node.publisher(keys.STOP).put(node.command(m.Stop))
             stopped = await still(node)
-            ros.put(data_key, fast, attachment=ros2.Attachment(2, issued + 1_000_000, gid).encode())
+            ros.put(data_key, fast, attachment=ros2.Attachment(2, issued + 1_000, gid).encode())
             ros.put(data_key, fast, attachment=ros2.Attachment(1, issued, gid).encode())
             ros.put("0/*/cmd_vel/**", fast, attachment=ros2.Attachment(1, time.time_ns(), b"x" * 16).encode())
             ros.put(data_key, b"\x00\x01\x00\x00bad", attachment=ros2.Attachment(2, time.time_ns(),
@@ -142,6 +176,13 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
                     fast, attachment=ros2.Attachment(3, time.time_ns(), b"z" * 16).encode())
             await wait_for(lambda: "wildcard" in service.output or "commands only on" in service.output, 20)
             await wait_for(lambda: "attachment of 5 bytes" in service.output, 20)
+            # State the service cannot turn into ROS 2's: one line naming the key and the field, and on it runs.
+            node.publisher(keys.LOC_POSE).put(m.PoseEstimate(stamp=time.time_ns(), x=0.0, y=0.0, theta=0.0,
+                                                             covariance=[1.0]))
+            node.publisher(keys.LANDMARKS).put(m.Landmarks(stamp=time.time_ns(), landmarks=[
+                m.Landmark(id=-5, range=1.0, bearing=0.0)]))
+            await wait_for(lambda: "loc/pose: covariance: 1 numbers, not 9" in service.output, 20)
+            await wait_for(lambda: "camera/landmarks: landmarks: id -5" in service.output, 20)
             # A flood of bad cmd_vel: a few lines a second, not one per sample, and the service runs on.
             lines_before = service.output.count("dropped a cmd_vel")
             for i in range(2000):
