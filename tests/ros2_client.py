@@ -5,7 +5,7 @@ rmw_zenoh client, not icefloe's code) in a process of its own.
 
 Prints one JSON line per event on stdout: ``{"keys": ...}`` once, ``{"odom": {...}}`` per Odometry
 received, and likewise ``tf``, ``joint_states``, ``battery_state``, ``image`` (the compressed
-image) and ``camera_info`` per message of theirs. Reads commands on stdin, one per line:
+image), ``camera_info`` and ``map`` per message of theirs. Reads commands on stdin, one per line:
 ``graph`` prints ``{"graph": [[topic, [types]], ...]}`` (what ``ros2 topic list -t`` shows);
 ``drive V W`` publishes geometry_msgs/msg/Twist on ``cmd_vel`` at 10 Hz; ``quiet`` stops
 publishing; ``quit`` exits. The message definitions are common_interfaces' fields
@@ -67,6 +67,11 @@ def main() -> None:
                          "model": msg.distortion_model, "frame": msg.header.frame_id,
                          "stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec]})
 
+    def on_map(msg) -> None:
+        data = bytes(msg.data.astype("uint8"))
+        say(map={"frame": msg.header.frame_id, "width": msg.info.width, "height": msg.info.height,
+                 "resolution": float(msg.info.resolution), "occupied": data.count(100), "free": data.count(0)})
+
     sub = ROS2Subscriber(f"{namespace}/odom", "nav_msgs/msg/Odometry", on_odom, node_name="student_sub", **where)
     state = [ROS2Subscriber(f"{namespace}/{topic}", ros_type, callback, node_name="student_sub", **where)
              for topic, ros_type, callback in (
@@ -74,7 +79,8 @@ def main() -> None:
                  ("joint_states", "sensor_msgs/msg/JointState", on_joints),
                  ("battery_state", "sensor_msgs/msg/BatteryState", on_battery),
                  ("camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage", on_image),
-                 ("camera/camera_info", "sensor_msgs/msg/CameraInfo", on_info))]
+                 ("camera/camera_info", "sensor_msgs/msg/CameraInfo", on_info),
+                 ("map", "nav_msgs/msg/OccupancyGrid", on_map))]
     pub = ROS2Publisher(f"{namespace}/cmd_vel", "geometry_msgs/msg/Twist", node_name="student_drive", **where)
     say(keys={"odom": sub.keyexpr, "cmd_vel": pub.keyexpr, **{s.topic: s.keyexpr for s in state}})
 

@@ -30,7 +30,8 @@ STATE_TOPICS = {"tf": "tf2_msgs/msg/TFMessage", "joint_states": "sensor_msgs/msg
                 "camera/landmarks": "visualization_msgs/msg/MarkerArray",
                 "camera/camera_info": "sensor_msgs/msg/CameraInfo",
                 "camera/image_raw/compressed": "sensor_msgs/msg/CompressedImage"}
-"""The topics besides odom and cmd_vel that the graph lists (map only where the grid service runs)."""
+"""The topics besides odom and cmd_vel that the graph lists (and map, where the grid service runs)."""
+STACK = ("sim", "hwbridge", "odometry", "power", "grid", "ros2")
 
 
 class Client:
@@ -74,8 +75,9 @@ class Client:
                 self.proc.wait()
 
 
-async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> None:
-    for service in ("sim", "hwbridge", "odometry", "power"):
+async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(make_robot) -> None:
+    robot = make_robot(f"services = {list(STACK)}\n[ros2]\nmap_period_s = 1.0")
+    for service in STACK[:-1]:
         robot.start(service)
     service = robot.start("ros2")
     namespace = f"/{robot.name}"
@@ -94,8 +96,8 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
             graph = dict((await client.wait("graph"))[0])
             assert graph[f"{namespace}/odom"] == ["nav_msgs/msg/Odometry"]
             assert graph[f"{namespace}/cmd_vel"] == ["geometry_msgs/msg/Twist"]
-            assert {topic: graph.get(f"{namespace}/{topic}") for topic in STATE_TOPICS} == \
-                {topic: [ros_type] for topic, ros_type in STATE_TOPICS.items()}
+            assert {topic: graph.get(f"{namespace}/{topic}") for topic in [*STATE_TOPICS, "map"]} == \
+                {topic: [ros_type] for topic, ros_type in {**STATE_TOPICS, "map": "nav_msgs/msg/OccupancyGrid"}.items()}
 
             # the state topics, each decoded by the client: tf and joint_states from the simulated
             # wheels (hwbridge, odometry), battery_state from the power service
@@ -115,6 +117,11 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(robot) -> 
             assert info["stamp"] == image["stamp"] == list(divmod(shot.stamp, 1_000_000_000))
             assert (info["width"], info["height"], info["model"]) == (320, 240, "plumb_bob")
             assert info["k"][0] == 250.0  # sim.toml's focal_px 500 at 640x480, for the 320x240 image
+            # map: the grid service's answer, asked again every map_period_s (a subscriber who joins late gets it)
+            grid = await node.query(keys.MAP_GRID, m.GridRequest())
+            world = (await client.wait("map"))[-1]
+            assert (world["frame"], world["width"], world["height"]) == ("map", grid.width, grid.height)
+            assert world["occupied"] == grid.cells.count(1) > 0 and world["free"] == grid.cells.count(0)
 
             # cmd_vel drives the simulated robot; odom follows.
             start = await sim_state(node)
