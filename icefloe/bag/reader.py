@@ -127,12 +127,13 @@ class Bag:
 
     def _plan(self, path: Path, schema: Schema | None, channel: Channel) -> ChannelPlan:
         found = self._plans.get((path, channel.id))
-        if found is None and self.ros2 is not None and schema is not None and schema.encoding == "ros2msg" \
-                and channel.message_encoding == "cdr":
-            found = self.ros2.plan(channel.topic, schema.name, self.robot)
         if found is None:
-            found = plan(channel.topic, schema.name if schema else "", schema.encoding if schema else "",
-                         channel.message_encoding, dict(channel.metadata), self.robot)
+            if self.ros2 is not None and schema is not None and schema.encoding == "ros2msg" \
+                    and channel.message_encoding == "cdr":
+                found = self.ros2.plan(channel.topic, schema.name, self.robot)
+            if found is None:  # not a ROS 2 topic replay turns back
+                found = plan(channel.topic, schema.name if schema else "", schema.encoding if schema else "",
+                             channel.message_encoding, dict(channel.metadata), self.robot)
             self._plans[(path, channel.id)] = found
         return found
 

@@ -31,6 +31,7 @@ from ..logs import LimitedLog
 from ..schemas import codec, keys
 from ..schemas import messages as m
 from .channels import ChannelPlan, ChannelSpec
+from .reader import Bag
 from .writer import BagWriter
 
 PROFILE = "ros2"
@@ -253,8 +254,10 @@ class Ros2Replay:
             if given.ros_type != ros_type or not topic.endswith("/" + given.topic):
                 continue
             namespace = topic[:-len(given.topic) - 1].strip("/")
+            if not namespace:  # /odom: not a robot's (ours are /<robot>/odom); replayed as raw bytes
+                return None
             name = robot or namespace
-            if not name or any(c in name for c in "/*$#? "):
+            if any(c in name for c in "/*$#? "):
                 return ChannelPlan(topic, "", "raw", None, "", refused=True,
                                    note=f"no robot name in its namespace {namespace or '(none)'!r}: give --robot")
             return ChannelPlan(topic, keys.key(name, given.key), "ros2", given.key.type, codec.MSGPACK,
@@ -267,10 +270,18 @@ class Ros2Replay:
         return convert
 
 
-def require_ros2(profile: str, path: Path, plans: Sequence[ChannelPlan]) -> None:
-    """BadRecording naming the file unless it is a ROS 2 recording with a topic replay turns back."""
-    if profile != PROFILE:
-        raise BadRecording(f"{path}: not a ROS 2 recording (its MCAP profile is {profile!r}, not {PROFILE!r})")
+def require_ros2(bag: Bag) -> None:
+    """BadRecording naming the file unless every file of ``bag`` is a whole ROS 2 recording with a topic
+    replay turns back (``replay --ros2``). A truncated one is refused before it is read: one line."""
+    for state in bag.files:
+        if not state.whole:
+            raise BadRecording(f"{state.path}: truncated (no summary section: was the recorder killed?); "
+                               "without --ros2, replay reads it up to its last whole chunk")
+        if state.profile != PROFILE:
+            raise BadRecording(f"{state.path}: not a ROS 2 recording (its MCAP profile is {state.profile!r}, "
+                               f"not {PROFILE!r})")
+    plans = bag.channels()
     if not any(plan.form == "ros2" for plan in plans):
         had = ", ".join(sorted({p.topic for p in plans})) or "no channel"
-        raise BadRecording(f"{path}: no ROS 2 topic of it turns back into an icefloe key (it has {had})")
+        raise BadRecording(f"{bag.files[0].path}: no ROS 2 topic of it turns back into an icefloe key "
+                           f"(it has {had})")

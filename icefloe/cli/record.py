@@ -272,8 +272,7 @@ async def record(args: argparse.Namespace, config: RobotConfig) -> int:
 async def replay_verb(args: argparse.Namespace, config: RobotConfig) -> int:
     bag = Bag(args.files, robot=args.robot, ros2=ros2_replay(config))
     if args.ros2:
-        for state in bag.files:
-            require_ros2(state.profile, state.path, bag.channels())
+        require_ros2(bag)
     options = ReplayOptions(rate=args.rate, loop=args.loop, start=args.start, end=args.end, keys=args.keys or (),
                             exclude=args.exclude or (), clock_hz=args.clock, allow_commands=args.allow_commands)
     status = Status()
