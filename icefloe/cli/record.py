@@ -293,7 +293,8 @@ async def replay_verb(args: argparse.Namespace, config: RobotConfig) -> int:
 
 
 def info(args: argparse.Namespace) -> int:
-    bag = Bag(args.files)
+    # ROS 2 topics shown as replay takes them (the default distro's types: these types are the same in each)
+    bag = Bag(args.files, ros2=ros2_replay(RobotConfig()))
     counts: dict[tuple[str, str, str], list[int]] = {}  # (key, form, encoding) -> [count, first, last]
     notes: dict[tuple[str, str, str], str] = {}
     for entry in bag.entries():
