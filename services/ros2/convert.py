@@ -68,6 +68,17 @@ class Odometry:
     def cdr(self, pose: m.Pose) -> bytes:
         return ros2.to_cdr(self.message(pose), ODOMETRY, self.distro)
 
+    @staticmethod
+    def pose(odometry: Any) -> m.Pose:
+        """The other way (replaying a ROS 2 recording): a nav_msgs/msg/Odometry as ``odom/pose``; the
+        heading is the quaternion's yaw (a differential drive turns about z only)."""
+        stamp = int(odometry.header.stamp.sec) * 1_000_000_000 + int(odometry.header.stamp.nanosec)
+        q, at = odometry.pose.pose.orientation, odometry.pose.pose.position
+        theta = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        moving = odometry.twist.twist
+        return m.Pose(stamp=stamp, x=float(at.x), y=float(at.y), theta=theta, v=float(moving.linear.x),
+                      w=float(moving.angular.z))
+
 
 @dataclass(frozen=True)
 class Output:
@@ -121,18 +132,62 @@ def outputs(config: RobotConfig) -> list[Output]:
     return table
 
 
+@dataclass(frozen=True)
+class Input:
+    """One ROS 2 topic of a recording turned back into an icefloe key's messages (``icefloe replay``
+    of an ``icefloe record --ros2`` recording)."""
+
+    topic: str
+    """Its ROS 2 name relative to the robot's namespace, e.g. ``odom``."""
+    ros_type: str
+    key: keys.Topic
+    """The icefloe key its messages go back to."""
+    message: Callable[[Any], Any]
+    """The ROS 2 message (a rosbags object) to icefloe's; raises ValueError naming what is wrong."""
+
+
+CMD_VEL = "cmd_vel"
+
+
+def cmd_vel_output(config: RobotConfig) -> Output:
+    """``cmd/twist`` as the ``cmd_vel`` the service subscribes to, for ``icefloe record --ros2``: the
+    robot's drive commands in the recording as a ROS 2 node would have sent them."""
+    types = ros2.typestore(config.ros2.distro).types
+    return Output(keys.TWIST, CMD_VEL, TWIST, lambda twist: twist_message(twist, types))
+
+
+def inputs(config: RobotConfig) -> list[Input]:
+    """The ROS 2 topics a replay turns back into icefloe's keys (the others are replayed as raw bytes)."""
+    return [Input("odom", ODOMETRY, keys.ODOM_POSE, Odometry.pose),
+            Input(CMD_VEL, TWIST, keys.TWIST, twist_of)]
+
+
+def twist_message(twist: m.Twist, types: Any) -> Any:
+    """``cmd/twist`` as a geometry_msgs/msg/Twist (the reverse of `twist_command`): ``v`` -> ``linear.x``,
+    ``w`` -> ``angular.z``. ``types``: the distribution's rosbags types."""
+    vector3 = types["geometry_msgs/msg/Vector3"]
+    return types[TWIST](linear=vector3(x=twist.v, y=0.0, z=0.0), angular=vector3(x=0.0, y=0.0, z=twist.w))
+
+
+def twist_of(twist: Any) -> m.Twist:
+    """A geometry_msgs/msg/Twist as a ``cmd/twist`` of no sender: replayed, hwbridge orders it by
+    when it arrives, as a plain put. Raises ValueError for a speed that is not a finite number."""
+    v, w = float(twist.linear.x), float(twist.angular.z)
+    if not (math.isfinite(v) and math.isfinite(w)):
+        raise ValueError(f"linear.x {v} or angular.z {w} is not a finite number")
+    return m.Twist(v=v, w=w)
+
+
 def twist_command(payload: bytes, attachment: bytes | None, distro: ros2.Distro) -> m.Twist:
     """A geometry_msgs/msg/Twist sample (CDR) as icefloe's ``cmd/twist``: ``linear.x`` -> ``v``,
     ``angular.z`` -> ``w`` (a differential drive has no other motion). The attachment orders it:
     ``sender`` is the ROS 2 publisher's GID, ``seq`` and ``stamp`` its sequence number and source
     timestamp, so a stop on the bus wins over every ROS 2 command issued before it.
     Raises ValueError naming what is wrong."""
-    twist = ros2.from_cdr(payload, TWIST, distro)
-    v, w = float(twist.linear.x), float(twist.angular.z)
-    if not (math.isfinite(v) and math.isfinite(w)):
-        raise ValueError(f"linear.x {v} or angular.z {w} is not a finite number")
+    twist = twist_of(ros2.from_cdr(payload, TWIST, distro))
+    v, w = twist.v, twist.w
     if attachment is None:
-        return m.Twist(v=v, w=w)  # a plain Zenoh put: ordered by when the robot's router saw it
+        return twist  # a plain Zenoh put: ordered by when the robot's router saw it
     meta = ros2.Attachment.decode(attachment)
     if meta.seq < 0 or meta.stamp <= 0:
         raise ValueError(f"attachment's sequence number {meta.seq} or timestamp {meta.stamp} is negative or zero")
