@@ -43,6 +43,7 @@ from icefloe.config import RobotConfig
 from icefloe.errors import BadRecording
 from icefloe.schemas import codec, keys
 from icefloe.schemas import messages as m
+from icefloe.services.ros2 import convert
 
 ROBOT = "penguin1"
 POSES = [m.Pose(stamp=START + i * 20_000_000, x=0.01 * i, y=-0.02 * i, theta=wrap_angle(0.4 * i), v=0.1 + 0.01 * i,
@@ -75,6 +76,11 @@ def write_bag(folder: Path, distro: str = "jazzy") -> Path:
     return writer.folder
 
 
+def published(robot_config: RobotConfig) -> list:
+    """What ``record --ros2`` records: the service's published topics (not the asked ``map``) and cmd_vel."""
+    return [*(o for o in convert.outputs(robot_config) if o.request is None), convert.cmd_vel_output(robot_config)]
+
+
 def check_odometry(msg, pose: m.Pose) -> None:
     """A nav_msgs/msg/Odometry (any decoder's object) holds ``pose``."""
     assert msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec == pose.stamp
@@ -95,16 +101,21 @@ def test_rosbags_opens_the_bag_and_decodes_every_message_with_the_distros_types(
     folder = write_bag(tmp_path / "run", distro)
     assert sorted(p.name for p in folder.iterdir()) == ["metadata.yaml", "run_0.mcap"]
     types = ros2.typestore(distro)  # type: ignore[arg-type]
-    odoms, twists = [], []
+    got: dict[str, list] = {}
     with AnyReader([folder], default_typestore=types) as reader:
-        by_topic = {c.topic: c for c in reader.connections}
-        assert {t: c.msgtype for t, c in by_topic.items()} == {
-            f"/{ROBOT}/odom": "nav_msgs/msg/Odometry", f"/{ROBOT}/cmd_vel": "geometry_msgs/msg/Twist"}
+        by_topic = {c.topic: c.msgtype for c in reader.connections}
+        # a channel for each topic that had a message (odom/pose makes odom and tf), of the table's type
+        table = {ros2.qualified_name(f"/{ROBOT}", o.topic): o.ros_type for o in published(config(distro))}
+        assert by_topic == {topic: table[topic] for topic in (f"/{ROBOT}/odom", f"/{ROBOT}/tf", f"/{ROBOT}/cmd_vel")}
         for connection, log_time, raw in reader.messages():
-            msg = types.deserialize_cdr(raw, connection.msgtype)
-            (odoms if connection.topic.endswith("/odom") else twists).append((log_time, msg))
+            got.setdefault(connection.topic, []).append((log_time, types.deserialize_cdr(raw, connection.msgtype)))
         hashes = {c.topic: c.digest for c in reader.connections}
-    assert len(odoms) == len(POSES) and len(twists) == len(TWISTS)
+    odoms, twists, tfs = got[f"/{ROBOT}/odom"], got[f"/{ROBOT}/cmd_vel"], got[f"/{ROBOT}/tf"]
+    assert set(got) == {f"/{ROBOT}/odom", f"/{ROBOT}/cmd_vel", f"/{ROBOT}/tf"}  # what was sent, nothing else
+    assert len(odoms) == len(tfs) == len(POSES) and len(twists) == len(TWISTS)
+    for (_, msg), pose in zip(tfs, POSES, strict=True):
+        (transform,) = msg.transforms
+        assert (transform.transform.translation.x, transform.transform.translation.y) == (pose.x, pose.y)
     for (log_time, msg), pose in zip(odoms, POSES, strict=True):
         assert log_time == pose.stamp + RECEIVED
         check_odometry(msg, pose)
@@ -112,7 +123,7 @@ def test_rosbags_opens_the_bag_and_decodes_every_message_with_the_distros_types(
         check_twist(msg, twist)
     info = json.loads((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert (info["version"], info["ros_distro"], info["message_count"]) == (
-        9 if distro == "jazzy" else 5, distro, len(POSES) + len(TWISTS))
+        9 if distro == "jazzy" else 5, distro, 2 * len(POSES) + len(TWISTS))
     if distro == "jazzy":  # REP 2016's hashes; Humble has none
         assert hashes[f"/{ROBOT}/odom"] == ros2.type_hash("nav_msgs/msg/Odometry", "jazzy")
 
@@ -135,7 +146,8 @@ def test_the_definitions_in_the_file_alone_decode_every_message(tmp_path: Path) 
             assert parse_qos(channel.metadata["offered_qos_profiles"]) == offered_qos("jazzy")
             assert channel.metadata["topic_type_hash"] == ros2.type_hash(schema.name, "jazzy")
             msg = store.deserialize_cdr(message.data, schema.name)
-            (odoms if channel.topic == f"/{ROBOT}/odom" else twists).append((message, msg))
+            if channel.topic in (f"/{ROBOT}/odom", f"/{ROBOT}/cmd_vel"):
+                (odoms if channel.topic == f"/{ROBOT}/odom" else twists).append((message, msg))
     for (message, msg), pose in zip(odoms, POSES, strict=True):
         assert (message.log_time, message.publish_time) == (pose.stamp + RECEIVED, pose.stamp)
         check_odometry(msg, pose)

@@ -200,11 +200,13 @@ class Recorder:
 
 def ros2_recording(config: RobotConfig, robot: str, output: Path, **options: Any) -> Ros2BagWriter:
     """The writer of ``record --ros2``: the ros2 service's topics (its table, and ``cmd_vel``) in
-    ROS 2's form, under the robot's ROS 2 namespace."""
+    ROS 2's form, under the robot's ROS 2 namespace. A topic the service makes by asking a key
+    (``map``: the grid is answered, not published) is not recorded."""
     from ..services.ros2 import convert  # numpy and rosbags' types: only for --ros2
 
     named = msgspec.structs.replace(config, name=robot)
-    outputs = [*convert.outputs(named), convert.cmd_vel_output(named)]
+    published = [output for output in convert.outputs(named) if output.request is None]
+    outputs = [*published, convert.cmd_vel_output(named)]
     transcoder = Ros2Transcoder(outputs, robot, convert.ros_namespace(named), config.ros2.distro)
     return Ros2BagWriter(output, transcoder, **options)
 
