@@ -8,13 +8,14 @@ to turn messages into CDR and back. Types, CDR and the REP 2016 type hashes come
 
 from __future__ import annotations
 
+import re
 import struct
 from dataclasses import dataclass
 from functools import cache
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from rosbags.typesys import Stores, get_typestore
-from rosbags.typesys.store import Typestore
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
 
 Distro = Literal["humble", "jazzy", "kilted", "rolling"]
 DISTROS: tuple[Distro, ...] = ("humble", "jazzy", "kilted", "rolling")
@@ -31,8 +32,7 @@ int64 LE), the GID's length (1 byte, always 16), the publisher's GID (16 bytes).
 GID_LEN = 16
 
 # The typestore of each distribution (rosbags: ROS2_ROLLING is not separate; its LATEST tracks Rolling).
-_STORES = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY, "kilted": Stores.ROS2_KILTED,
-           "rolling": Stores.LATEST}
+_STORES = {"humble": "ROS2_HUMBLE", "jazzy": "ROS2_JAZZY", "kilted": "ROS2_KILTED", "rolling": "LATEST"}
 
 DEFAULT_QOS = "::,10:,:,:,,"
 """rmw_zenoh's compact QoS (`qos_to_keyexpr`): every policy at its default (reliable, volatile, keep
@@ -42,7 +42,10 @@ last) but the depth, 10, which is what ``ros2 topic`` and rclpy's default profil
 @cache
 def typestore(distro: Distro) -> Typestore:
     """The message types of one ROS 2 distribution, as rosbags ships them."""
-    return get_typestore(_STORES[distro])
+    # Imported here: the router reads this module's names (its access rules) and need not load rosbags.
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores[_STORES[distro]])
 
 
 def dds_type_name(ros_type: str) -> str:
@@ -62,6 +65,18 @@ def type_hash(ros_type: str, distro: Distro) -> str:
 def mangle(name: str) -> str:
     """A name in a liveliness token: each ``/`` becomes ``%``; an empty name is ``%``."""
     return name.replace("/", "%") if name else "%"
+
+
+ROS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+"""A name ROS 2 takes as one part of a namespace: a letter, then letters, digits, ``_``."""
+
+
+def robot_namespace(robot: str, namespace: str = "") -> str | None:
+    """The ROS 2 namespace of a robot's topics: ``namespace`` if set (the config's ``ros2.namespace``),
+    else ``/<robot>``; None when the robot's name is not a ROS 2 name and no namespace is set."""
+    if namespace:
+        return namespace
+    return f"/{robot}" if ROS_NAME.fullmatch(robot) else None
 
 
 def qualified_name(namespace: str, topic: str) -> str:

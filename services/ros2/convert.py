@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -20,17 +19,15 @@ from . import camera, state
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 TWIST = "geometry_msgs/msg/Twist"
-ROS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
 
 def ros_namespace(config: RobotConfig) -> str:
     """``ros2.namespace``, else ``/<robot name>``; a robot name ROS 2 cannot take is a ConfigError."""
-    if config.ros2.namespace:
-        return config.ros2.namespace
-    if not ROS_NAME.fullmatch(config.name):
+    namespace = ros2.robot_namespace(config.name, config.ros2.namespace)
+    if namespace is None:
         raise ConfigError(f"{config.source or config.name}: ros2.namespace: the robot's name {config.name!r} is "
                           f"not a ROS 2 name (a letter, then letters, digits, _); set ros2.namespace")
-    return f"/{config.name}"
+    return namespace
 
 
 @dataclass(frozen=True)
