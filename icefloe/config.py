@@ -43,7 +43,7 @@ DEFAULT_ROBOT = "sim"
 """The robot a command means when none is named: the simulated one."""
 ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
 
-OPTIONAL_SERVICES = ("grid", "planner", "follower", "mapper", "slam")
+OPTIONAL_SERVICES = ("grid", "planner", "follower", "mapper", "slam", "ros2")
 """icefloe's services `icefloe up` starts only when ``services`` names them (docs/planning.md,
 docs/slam.md): a course turns them on; a robot that does not use them pays nothing for them."""
 
@@ -437,6 +437,32 @@ class Follower(Section):
     """Stop when no pose came for this long while following, s."""
 
 
+class Ros2(Section):
+    """ROS 2 topics in rmw_zenoh's form on the robot's own router (services/ros2; docs/ros2.md)."""
+
+    distro: Literal["humble", "jazzy", "kilted", "rolling"] = "jazzy"
+    """The ROS 2 distribution whose type hashes the keys carry (Humble's rmw_zenoh writes none)."""
+    domain_id: Annotated[int, Meta(ge=0, le=232)] = 0
+    """``ROS_DOMAIN_ID`` of the ROS 2 users (0-232, as ROS 2 allows)."""
+    namespace: Annotated[str, Meta(pattern=r"^(/[A-Za-z][A-Za-z0-9_]*)*$")] = ""
+    """The topics' namespace, ``/penguin1`` ("" = ``/<robot name>``)."""
+    odom_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "odom"
+    """``header.frame_id`` of ``odom``."""
+    base_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "base_link"
+    """``child_frame_id`` of ``odom`` and ``tf``."""
+    map_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "map"
+    """``header.frame_id`` of ``map``, ``pose`` and ``external_pose``: the world frame (the world map's)."""
+    camera_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "camera_optical_frame"
+    """``header.frame_id`` of the camera's topics: OpenCV's axes (x right, y down, z forward), which
+    are ROS's optical frame (REP 103)."""
+    images: Literal["off", "image", "frames"] = "image"
+    """``camera/image_raw/compressed``: "image" = the JPEGs of ``camera/image`` (``camera.image_rate_hz``,
+    2 a second, made anyway); "frames" = every captured frame (``camera/frames``: the camera then
+    encodes each one, all the time); "off" = none (``camera/camera_info`` still follows ``camera/image``)."""
+    map_period_s: Seconds = 5.0
+    """How often ``map`` is published again, s (volatile QoS: a ROS 2 user who joins later gets the next)."""
+
+
 class Lens(Section):
     """The simulated camera's true lens: what `icefloe calibrate` measures (``[sim.lens]``).
 
@@ -590,6 +616,7 @@ class RobotConfig(Section):
     sim: Sim = Sim()
     planner: Planner = Planner()
     follower: Follower = Follower()
+    ros2: Ros2 = Ros2()
     webapi: Webapi = Webapi()
     lab: Lab = Lab()
     zenoh: Zenoh = Zenoh()
