@@ -212,3 +212,64 @@ def test_the_lap_starts_at_the_interpolated_crossing():
     assert judge.lap is None
     judge.feed(0.04, 0.004, -0.6, 0.0)
     assert judge.lap is not None and judge.lap.start == pytest.approx(0.02)
+
+
+def test_a_lap_of_the_shipped_track():
+    """The real track (deploy/worlds/track.toml): round its centerline at 0.2 m/s from 10 cm behind
+    the start line to 10 cm past it, stopping for 1 s with the front 5 cm before the stop line."""
+    from icefloe.worldmap import load_world
+
+    track = load_world("track").track
+    assert track is not None
+    line = track.centerline()
+    sign = track.signs[0]
+    stop_at = int(np.argmin(np.hypot(*(line - [sign.stop_x, sign.stop_y]).T)))
+    x0, y0, yaw = track.start
+    script = Script(x0 - 0.1 * math.cos(yaw), y0 - 0.1 * math.sin(yaw), yaw)
+    before = Rules().radius + 0.05  # the centre this far before the line puts the front 5 cm before it
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(line, axis=0).T))])
+    stop_point = np.array([np.interp(arc[stop_at] - before, arc, line[:, k]) for k in (0, 1)])
+    stop_arc = arc[stop_at] - before
+    for i, (x, y) in enumerate(line[1:], start=1):
+        if arc[i - 1] < stop_arc <= arc[i]:
+            script.to(*stop_point).wait(1.0)
+        script.to(x, y)
+    script.to(x0 + 0.1 * math.cos(yaw), y0 + 0.1 * math.sin(yaw))
+    judge, events = judged(script, track)  # type: ignore[arg-type]
+    assert kinds(events) == ["lap_start", "stopped", "lap_end", "lap_start"], [e.text for e in events]
+    lap = judge.finished[0]
+    expected = track.lap_length() / SPEED + 1.0
+    assert lap.time(judge.now) == pytest.approx(expected, abs=0.1)
+    assert lap.score(judge.now) == pytest.approx(expected - SAFE_REWARD, abs=0.1)
+
+
+def test_the_results_as_messages_and_file_lines(tmp_path):
+    import msgspec
+
+    from icefloe.schemas import codec
+    from icefloe.schemas import messages as m
+    from icefloe.services.judge.report import Results, lap_message, state_message
+
+    judge, events = judged(Script(-0.1, -0.6).lap(stop_before=None))
+    done = lap_message("fake", judge.finished[0], judge.now)
+    assert (done.lap, done.finished, done.ran_stop, done.penalties, done.reward) == (1, True, 1, STOP_PENALTY, 0.0)
+    assert done.score == pytest.approx(done.time + STOP_PENALTY)
+    assert [e.kind for e in done.events] == ["lap_start", "ran_stop", "lap_end"]
+    assert codec.decode(codec.encode(done), codec.MSGPACK, m.JudgeLap) == done  # what the bus carries
+    state = state_message(judge, events)
+    assert (state.lap, state.laps, state.best_score, state.penalties) == (2, 1, done.score, 0.0)
+    assert len(state.events) == len(events) and state.events[-1].kind == "lap_start"
+    results = Results(str(tmp_path / "sub" / "results.jsonl"))
+    results.write(done)
+    results.write(lap_message("fake", judge.laps[-1], judge.now))
+    lines = [msgspec.json.decode(line, type=m.JudgeLap) for line in results.path.read_bytes().splitlines()]
+    assert lines[0] == done and lines[1].finished is False and lines[1].lap == 2
+
+
+def test_an_unwritable_results_file_names_the_setting(tmp_path):
+    from icefloe.errors import ConfigError
+    from icefloe.services.judge.report import Results
+
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ConfigError, match=r"^robot.toml: judge.results: cannot write"):
+        Results(str(tmp_path / "file" / "results.jsonl"), "robot.toml")

@@ -14,31 +14,43 @@ status 78 (`ConfigError`): `icefloe up` does not restart it.
 from __future__ import annotations
 
 import asyncio
-from pathlib import Path
+import time
 
-import msgspec
+import numpy as np
 
+from icefloe import paths
 from icefloe.config import RobotConfig
 from icefloe.errors import ConfigError
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
-from icefloe.schemas import messages as m
 from icefloe.worldmap import load_world
 
-from .scoring import Event, Judge, Lap, Rules, TrackLike
+from .report import RECENT_EVENTS, Results, lap_message, state_message
+from .scoring import Event, Judge, Rules, TrackLike
 
-RECENT_EVENTS = 10
-"""Events `JudgeState` carries."""
+MAX_AHEAD_S = 10.0
+"""A truth sample stamped further ahead of this machine's clock is refused: one such sample would
+otherwise make every true one after it "old" (the simulator stamps with its machine's clock)."""
 
 
 def track_of(config: RobotConfig) -> TrackLike:
     """The judged world's track; `ConfigError` naming the world file when it has none."""
-    name = config.judge.world or config.sim.world
-    world = load_world(name)
+    world = load_world(config.judge.world or config.sim.world)
+    name = world_path(config.judge.world or config.sim.world)
     if world.track is None:
         raise ConfigError(f"{name}: track: the world has no track to judge (set `track = \"<layout>\"` in the "
                           "world file, or judge.world to a track world such as \"track\")")
+    line = world.track.centerline()
+    if len(line) < 2 or not np.allclose(line[0], line[-1]):
+        raise ConfigError(f"{name}: track: {world.track.name}'s road does not close into a loop: the judge "
+                          "times laps, from the start line round to it again")
     return world.track
+
+
+def world_path(name_or_path: str) -> str:
+    """The world file a name means (as `load_world` finds it), for messages."""
+    text = name_or_path if "/" in name_or_path or name_or_path.startswith("~") else name_or_path.removesuffix(".toml")
+    return str(paths.find("worlds", text, "world file"))
 
 
 def rules_of(config: RobotConfig) -> Rules:
@@ -47,55 +59,10 @@ def rules_of(config: RobotConfig) -> Rules:
                  stop_dwell_s=j.stop_dwell_s, stop_tolerance=j.stop_tolerance)
 
 
-def ns(t: float) -> int:
-    return round(t * 1e9)
-
-
-def event_message(e: Event) -> m.JudgeEvent:
-    return m.JudgeEvent(stamp=ns(e.t), kind=e.kind, lap=e.lap, penalty=e.penalty, x=e.x, y=e.y,  # type: ignore[arg-type]
-                        text=e.text)
-
-
-def lap_message(track: str, lap: Lap, now: float) -> m.JudgeLap:
-    end = lap.end if lap.end is not None else now
-    return m.JudgeLap(stamp=ns(end), track=track, lap=lap.number, time=lap.time(end), penalties=lap.penalties,
-                      reward=lap.reward, score=lap.score(end), tyre_off=lap.tyre_off, bogged=lap.bogged,
-                      ran_stop=lap.ran_stop, finished=lap.end is not None,
-                      events=[event_message(e) for e in lap.events])
-
-
-def state_message(judge: Judge, recent: list[Event]) -> m.JudgeState:
-    lap, done = judge.lap, judge.finished
-    return m.JudgeState(
-        stamp=ns(judge.now), track=judge.track.name, lap=lap.number if lap else 0,
-        lap_time=lap.time(judge.now) if lap else 0.0, penalties=lap.penalties if lap else 0.0,
-        tyre_off=lap.tyre_off if lap else 0, bogged=lap.bogged if lap else 0, ran_stop=lap.ran_stop if lap else 0,
-        laps=len(done), best_score=min((d.score(judge.now) for d in done), default=0.0),
-        events=[event_message(e) for e in recent[-RECENT_EVENTS:]])
-
-
-class Results:
-    """The results file: one `JudgeLap` per line, appended (a judge restarted adds to it)."""
-
-    def __init__(self, path: str) -> None:
-        self.path = Path(path).expanduser() if path else None
-        if self.path is not None:
-            try:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-                self.path.touch()
-            except OSError as exc:
-                raise ConfigError(f"judge.results: cannot write {self.path}: {exc.strerror}") from None
-
-    def write(self, lap: m.JudgeLap) -> None:
-        if self.path is not None:
-            with self.path.open("ab") as f:
-                f.write(msgspec.json.encode(lap) + b"\n")
-
-
 async def main(config: RobotConfig) -> None:
     track = track_of(config)
     judge = Judge(track, rules_of(config))
-    results = Results(config.judge.results)
+    results = Results(config.judge.results, config.source)
     recent: list[Event] = []
     last_stamp = 0
 
@@ -107,6 +74,10 @@ async def main(config: RobotConfig) -> None:
             nonlocal last_stamp
             async for truth in node.subscribe(keys.TRUTH, latest=False):
                 # (Non-finite numbers never get here: the subscription drops them with a line.)
+                if truth.stamp > time.time_ns() + MAX_AHEAD_S * 1e9:
+                    node.limited.warning("judge future", "sim/truth: stamp %d is %.0f s ahead of this clock; ignored",
+                                         truth.stamp, (truth.stamp - time.time_ns()) / 1e9)
+                    continue
                 if truth.stamp <= last_stamp:  # an old sample (or another publisher's): time runs forward only
                     node.limited.warning("judge stamp", "sim/truth: stamp %d is not after the last one (%d); ignored",
                                          truth.stamp, last_stamp)

@@ -218,6 +218,7 @@ class Judge:
 
     def feed(self, t: float, x: float, y: float, theta: float) -> list[Event]:
         """One truth sample (s, m, m, rad); the events it caused, in order."""
+        t, x, y, theta = float(t), float(x), float(y), float(theta)  # numpy's floats do not go on the bus
         events: list[Event] = []
         prev = self._prev
         self._prev = (t, x, y, theta)
@@ -264,10 +265,10 @@ class Judge:
         if lap is not None:
             if not {1, 2, 3} <= self._quarters:
                 return  # back and forth over the line: not a lap
-            lap.end = crossed
             self._event(events, crossed, "lap_end", 0.0, x, y,
                         f"lap {lap.number}: {lap.time(crossed):.2f} s + {lap.penalties:.0f} s penalties"
                         f" - {lap.reward:.0f} s reward = {lap.score(crossed):.2f} s")
+            lap.end = crossed
         self.laps.append(Lap(number=len(self.laps) + 1, start=crossed))
         self._quarters = {0}
         self._event(events, crossed, "lap_start", 0.0, x, y, f"lap {len(self.laps)} started")
