@@ -3,7 +3,8 @@
 The robot starts 10 cm behind the start line (deploy/tracks/loop.toml: x = -0.6 m on the bottom
 straight, driving +x), turned 0.6 rad to the right, and drives straight on at 0.2 m/s: it crosses
 the start line (the lap starts), its right tyre then its left leave the road, then all of it
-(+1 +1 +5 s), seen on ``judge/state`` and in the judge's log lines. Before it drives, hostile
+(+1 +1 +5 s), seen on ``judge/state``, in the judge's log lines and over HTTP as the robot's web page
+reads it (``/bus/judge/state``). Before it drives, hostile
 truth on ``sim/truth`` (garbage, wrong fields, a stamp from the past, one far in the future) is
 refused with few lines and the judge keeps judging; at SIGINT the lap in progress is written to
 the results file. Measured on 2026-12-07 (2 cores, other work beside it): the run 3.7 s, the refusal 0.6 s
@@ -15,8 +16,9 @@ from __future__ import annotations
 import asyncio
 import time
 
-from conftest import wait_for
+from conftest import free_port, wait_for
 from test_hwbridge_helpers import driving, start_stack
+from webapi_helpers import webapi
 
 from icefloe.errors import EXIT_CONFIG
 from icefloe.schemas import codec, keys
@@ -32,13 +34,17 @@ start_theta = -0.6
 [judge]
 rate_hz = 10.0
 results = "{results}"
+
+[webapi]
+host = "127.0.0.1"
+port = {port}
 """
 
 
 async def test_a_run_off_the_road_is_penalised_on_the_bus(make_robot, tmp_path) -> None:
     results = tmp_path / "results.jsonl"
-    robot = make_robot(TRACK_ROBOT.format(results=results))
-    async with robot.node("tester") as node:
+    robot = make_robot(TRACK_ROBOT.format(results=results, port=free_port()))
+    async with robot.node("tester") as node, webapi(robot) as http:
         states: list[m.JudgeState] = []
 
         async def keep() -> None:
@@ -74,6 +80,10 @@ async def test_a_run_off_the_road_is_penalised_on_the_bus(make_robot, tmp_path) 
         assert "the whole robot off the road: +5 s" in judge.output
         assert judge.output.count("right tyre off the road: +1 s") == 1
         assert judge.output.count("stamp") <= 4, judge.output  # one line per refusal, no flood
+        # What the robot's web page reads (services/webapi/static/page.js: showJudge).
+        status, [sample] = await http.send("GET", "/bus/judge/state")
+        assert status == 200 and sample["value"]["bogged"] == 1 and sample["value"]["penalties"] == 7.0, sample
+        assert [e["kind"] for e in sample["value"]["events"]][-1] == "bogged"
         watcher.cancel()
     assert judge.stop() == 0, judge.output
     assert sim.alive()
