@@ -437,6 +437,10 @@ class Truth(Message):
     """True while the robot pushes against an obstacle of the world (it does not move into it)."""
     collisions: int = 0
     """Times the robot has run into an obstacle since the simulator started."""
+    sim_time: float = 0.0
+    """Simulated seconds since the simulator started, when this pose was true (its 1 kHz clock:
+    exact where a busy machine makes it drop steps and the wall clock is not; 0 = not given). The
+    lap judge times laps by it."""
 
 
 # --------------------------------------------------------------------------- maps of landmarks

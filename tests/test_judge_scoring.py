@@ -273,3 +273,25 @@ def test_an_unwritable_results_file_names_the_setting(tmp_path):
     (tmp_path / "file").write_text("")
     with pytest.raises(ConfigError, match=r"^robot.toml: judge.results: cannot write"):
         Results(str(tmp_path / "file" / "results.jsonl"), "robot.toml")
+
+
+def test_the_judge_times_by_the_simulators_clock():
+    from icefloe.schemas import messages as m
+    from icefloe.services.judge.timing import TruthTime
+
+    def truth(stamp_s: float, sim_time: float = 0.0) -> m.Truth:
+        return m.Truth(stamp=round(stamp_s * 1e9), x=0.0, y=0.0, theta=0.0, sim_time=sim_time)
+
+    clock = TruthTime()
+    assert clock.seconds(truth(1000.0)) == 1000.0  # no sim_time yet: the stamps
+    assert clock.stamp(1000.0) == 1000 * 10**9
+    # The simulator's clock from now on, carrying on where the stamps were (no jump back).
+    assert clock.seconds(truth(1000.5, sim_time=20.0)) == pytest.approx(1000.0)
+    # A busy machine: 1 s of wall time, 0.6 s simulated (steps dropped): the judge takes 0.6 s.
+    assert clock.seconds(truth(1001.5, sim_time=20.6)) == pytest.approx(1000.6)
+    assert clock.stamp(1000.6) == 1001_500_000_000  # and stamps events with the wall clock
+    # Once sim_time came, a sample without it is refused (it would jump by decades).
+    assert clock.seconds(truth(1001.6)) is None
+    # The simulator started again: its clock went back to 0.02 s; the judge's carries on.
+    assert clock.seconds(truth(1003.0, sim_time=0.02)) == pytest.approx(1000.6)
+    assert clock.seconds(truth(1003.1, sim_time=0.12)) == pytest.approx(1000.7)

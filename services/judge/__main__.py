@@ -3,12 +3,13 @@
     python -m icefloe.services.judge --config deploy/robots/sim.toml
     icefloe echo judge/state
 
-It reads the simulator's truth (``sim/truth``) and the track of ``judge.world`` (else
-``sim.world``), scores each lap by the workshop's rules (`scoring`, docs/judge.md), publishes
-``judge/state`` (`JudgeState`) ``judge.rate_hz`` times a second and ``judge/lap`` (`JudgeLap`) at
-each lap's end, logs each penalty as one line, and appends each lap to ``judge.results`` (JSON
-lines), the lap in progress too when it stops. A world without a track is one line and exit
-status 78 (`ConfigError`): `icefloe up` does not restart it.
+It reads the simulator's truth (``sim/truth``, timed by its ``sim_time``: `timing`) and the
+track of ``judge.world`` (else ``sim.world``), scores each lap by the workshop's rules
+(`scoring`, docs/judge.md), publishes ``judge/state`` (`JudgeState`) ``judge.rate_hz`` times a
+second and ``judge/lap`` (`JudgeLap`) at each lap's end, logs each penalty as one line, and
+appends each lap to ``judge.results`` (JSON lines), the lap in progress too when it stops. A
+world without a track is one line and exit status 78 (`ConfigError`): `icefloe up` does not
+restart it.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from icefloe.worldmap import load_world
 
 from .report import RECENT_EVENTS, Results, lap_message, state_message
 from .scoring import Event, Judge, Rules, TrackLike
+from .timing import TruthTime
 
 MAX_AHEAD_S = 10.0
 """A truth sample stamped further ahead of this machine's clock is refused: one such sample would
@@ -64,6 +66,7 @@ async def main(config: RobotConfig) -> None:
     judge = Judge(track, rules_of(config))
     results = Results(config.judge.results, config.source)
     recent: list[Event] = []
+    clock = TruthTime()
     last_stamp = 0
 
     async with Node("judge", config) as node:
@@ -83,7 +86,12 @@ async def main(config: RobotConfig) -> None:
                                          truth.stamp, last_stamp)
                     continue
                 last_stamp = truth.stamp
-                for event in judge.feed(truth.stamp / 1e9, truth.x, truth.y, truth.theta):
+                t = clock.seconds(truth)
+                if t is None:
+                    node.limited.warning("judge sim_time", "sim/truth: stamp %d has no sim_time where the ones "
+                                         "before had; ignored", truth.stamp)
+                    continue
+                for event in judge.feed(t, truth.x, truth.y, truth.theta):
                     recent[:] = [*recent[-RECENT_EVENTS + 1:], event]
                     if event.penalty:
                         node.log.warning("lap %d: %s: +%.0f s at x %.2f m, y %.2f m", event.lap, event.text,
@@ -92,14 +100,14 @@ async def main(config: RobotConfig) -> None:
                         node.log.info("%s", event.text)
                     if event.kind == "lap_end":
                         done = judge.finished[-1]
-                        message = lap_message(track.name, done, judge.now)
+                        message = lap_message(track.name, done, judge.now, clock.stamp)
                         laps.put(message)
                         results.write(message)
 
         async def publish_state() -> None:
             period = 1.0 / config.judge.rate_hz
             while True:
-                state.put(state_message(judge, recent))
+                state.put(state_message(judge, recent, clock.stamp))
                 await asyncio.sleep(period)
 
         node.log.info("judging track %s (lap %.2f m, %d stop signs) from %s; results to %s", track.name,
@@ -110,7 +118,7 @@ async def main(config: RobotConfig) -> None:
                 tasks.create_task(publish_state())
         finally:
             if judge.lap is not None:  # the lap in progress, cut short
-                results.write(lap_message(track.name, judge.lap, judge.now))
+                results.write(lap_message(track.name, judge.lap, judge.now, clock.stamp))
 
 
 if __name__ == "__main__":

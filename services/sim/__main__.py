@@ -104,7 +104,8 @@ async def _truth(node: Node, sim: Simulator) -> None:
         if not sim.clock.running:
             raise RuntimeError("the simulation clock stopped (see the traceback above)")
         x, y, theta = sim.world.pose
-        pub.put(m.Truth(stamp=time.time_ns(), x=x, y=y, theta=theta, collided=sim.world.collided,
+        pub.put(m.Truth(stamp=time.time_ns(), x=x, y=y, theta=theta, sim_time=sim.clock.now,
+                        collided=sim.world.collided,
                         collisions=sim.world.collisions))
         deadline = max(deadline + period, time.monotonic())
         await asyncio.sleep(deadline - time.monotonic())
