@@ -295,3 +295,15 @@ def test_the_judge_times_by_the_simulators_clock():
     # The simulator started again: its clock went back to 0.02 s; the judge's carries on.
     assert clock.seconds(truth(1003.0, sim_time=0.02)) == pytest.approx(1000.6)
     assert clock.seconds(truth(1003.1, sim_time=0.12)) == pytest.approx(1000.7)
+
+
+def test_the_shortcut_across_the_shipped_track_is_no_lap():
+    """Through the middle (the road between its two T junctions) and back to the start line: the
+    lap's second quarter (the right-hand side) was never driven, so crossing the line ends nothing."""
+    from icefloe.worldmap import load_world
+
+    track = load_world("track").track
+    assert track is not None
+    script = Script(-0.7, -0.6).to(0.0, -0.6).to(0.0, 0.6).to(-1.2, 0.6).to(-1.2, -0.6).to(-0.5, -0.6)
+    judge, events = judged(script, track)  # type: ignore[arg-type]
+    assert [e.kind for e in events if e.kind.startswith("lap")] == ["lap_start"] and judge.finished == []
