@@ -138,7 +138,7 @@ def _direction(edge: int) -> np.ndarray:
     return np.array([math.cos(edge * math.pi / 2), math.sin(edge * math.pi / 2)]).round(12)
 
 
-def _piece(kind: str, entry: int, exit: int, half_tile: float) -> np.ndarray:
+def centre_piece(kind: str, entry: int, exit: int, half_tile: float) -> np.ndarray:
     """The road's centre from edge ``entry`` to edge ``exit`` of a tile, (n, 2) m from its centre,
     points `STEP` apart or closer, both ends included."""
     a, b = _direction(entry) * half_tile, _direction(exit) * half_tile
@@ -215,7 +215,7 @@ class Track(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
             exit = self._through(tile, entry)
             if exit is None:
                 continue
-            piece = _piece(tile.kind, entry, exit, self.tile_size / 2) + centre
+            piece = centre_piece(tile.kind, entry, exit, self.tile_size / 2) + centre
             gaps = np.hypot(*(piece - [x, y]).T)
             i = int(np.argmin(gaps))
             if gaps[i] > self.road_width / 2:
@@ -263,7 +263,7 @@ class Track(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
         route, closed = self.route()
         pieces = []
         for tile, entry, exit in route:
-            piece = _piece(tile.kind, entry, exit, self.tile_size / 2)
+            piece = centre_piece(tile.kind, entry, exit, self.tile_size / 2)
             pieces.append((piece if not pieces else piece[1:]) + [tile.col * self.tile_size, tile.row * self.tile_size])
         line = np.concatenate(pieces)
         start = int(np.argmin(np.hypot(*(line - self.start[:2]).T)))
