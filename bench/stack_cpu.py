@@ -222,7 +222,8 @@ def main() -> None:
     budgets = {**BUDGETS, **(COURSE_BUDGETS if args.course else {})}
     extra = f"[webapi]\nport = {free_port()}\n" + ("[camera]\n" + "\n".join(args.camera) + "\n" if args.camera else "")
     if args.course:
-        extra = f"services = {list(ALL_SERVICES + OPTIONAL_SERVICES)!r}\n" + extra
+        course = [s for s in OPTIONAL_SERVICES if s != "judge"]  # the judge needs a track world (docs/judge.md)
+        extra = f"services = {list(ALL_SERVICES) + course!r}\n" + extra
     config = robot_config(Path(tempfile.mkdtemp()), "cpubench", extra)
     icefloe = [sys.executable, "-m", "icefloe.cli"]
     up = subprocess.Popen([*icefloe, "up", str(config), "--no-viz"], stdout=subprocess.DEVNULL,

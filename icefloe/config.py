@@ -43,9 +43,9 @@ DEFAULT_ROBOT = "sim"
 """The robot a command means when none is named: the simulated one."""
 ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
 
-OPTIONAL_SERVICES = ("grid", "planner", "follower", "mapper", "slam", "ros2")
+OPTIONAL_SERVICES = ("grid", "planner", "follower", "mapper", "slam", "ros2", "judge")
 """icefloe's services `icefloe up` starts only when ``services`` names them (docs/planning.md,
-docs/slam.md): a course turns them on; a robot that does not use them pays nothing for them."""
+docs/slam.md, docs/judge.md): a course turns them on; a robot that does not use them pays nothing for them."""
 
 # Value ranges, checked when a file is read: a bad value is a ConfigError naming its key
 # ("robot.toml: hwbridge.deadman_s: Expected `float` > 0.0") and nothing starts.
@@ -437,6 +437,25 @@ class Follower(Section):
     """Stop when no pose came for this long while following, s."""
 
 
+class Judge(Section):
+    """The lap judge of a track world: RVSS "Need 4 Speed"'s lap time, penalties and reward from the
+    simulator's truth (services/judge, docs/judge.md)."""
+
+    world: str = ""
+    """The world whose track is judged: a world name or a path ("" = ``sim.world``)."""
+    rate_hz: Annotated[float, Meta(gt=0, le=50)] = 5.0
+    """``judge/state`` per second."""
+    results: str = "{run_dir}/judge.jsonl"
+    """The results file: one JSON line per lap (`JudgeLap`), appended as each lap ends, and the lap
+    in progress when the judge stops ("" = none)."""
+    stop_zone: Annotated[float, Meta(gt=0, le=1.0)] = 0.10
+    """How far before a stop sign's line the robot's front may stop, m (the workshop's 10 cm)."""
+    stop_dwell_s: Annotated[float, Meta(gt=0, le=10.0)] = 0.5
+    """Stopped = stood still this long, s (docs/judge.md says why)."""
+    stop_tolerance: Annotated[float, Meta(gt=0, le=0.05)] = 0.005
+    """Standing still = the centre moved at most this far, m."""
+
+
 class Ros2(Section):
     """ROS 2 topics in rmw_zenoh's form on the robot's own router (services/ros2; docs/ros2.md)."""
 
@@ -617,6 +636,7 @@ class RobotConfig(Section):
     planner: Planner = Planner()
     follower: Follower = Follower()
     ros2: Ros2 = Ros2()
+    judge: Judge = Judge()
     webapi: Webapi = Webapi()
     lab: Lab = Lab()
     zenoh: Zenoh = Zenoh()

@@ -46,6 +46,7 @@ path is relative to the world file.
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 from typing import Any, Literal
@@ -67,6 +68,8 @@ CONNECTIONS: dict[str, tuple[int, ...]] = {
 """The edges (0 = E, 1 = N, 2 = W, 3 = S) each kind's road leaves through, at rotation 0."""
 STEP = 0.01
 """The centerline's spacing, m."""
+MAX_TILES = 2500
+"""More tiles than a sports hall's floor holds (50 x 50): a bigger layout is a mistake."""
 
 
 class TrackError(ConfigError):
@@ -157,8 +160,9 @@ def centre_piece(kind: str, entry: int, exit: int, half_tile: float) -> np.ndarr
     return np.concatenate([a * (1 - t), b * t[1:]])
 
 
-class Track(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """A floor of road tiles with signs on it (a layout file)."""
+class Track(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, dict=True):
+    """A floor of road tiles with signs on it (a layout file). (``dict=True``: room for the cached
+    tile grid and centerline: a judge asks `on_road` several times a step.)"""
 
     name: str = ""
     """Defaults to the layout file's name."""
@@ -176,8 +180,12 @@ class Track(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
         """The tile under the point (x, y) (world frame, m), or None."""
         return self._grid().get((math.floor(x / self.tile_size + 0.5), math.floor(y / self.tile_size + 0.5)))
 
-    def _grid(self) -> dict[tuple[int, int], Tile]:
+    @functools.cached_property
+    def _cells(self) -> dict[tuple[int, int], Tile]:
         return {(t.col, t.row): t for t in self.tiles}
+
+    def _grid(self) -> dict[tuple[int, int], Tile]:
+        return self._cells
 
     def local(self, tile: Tile, x: np.ndarray | float, y: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """World points (m) in the frame of ``tile`` at rotation 0: from its centre, turned back."""
@@ -259,7 +267,12 @@ class Track(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
 
     def centerline(self) -> np.ndarray:
         """The road's centre (N, 2), world m, in driving order from the start line's centre (its
-        projection on the road's centre); closed (the last point is the first) if a loop."""
+        projection on the road's centre); closed (the last point is the first) if a loop.
+        Points at most `STEP` apart; read-only (computed once)."""
+        return self._centerline
+
+    @functools.cached_property
+    def _centerline(self) -> np.ndarray:
         route, closed = self.route()
         pieces = []
         for tile, entry, exit in route:
@@ -267,7 +280,9 @@ class Track(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
             pieces.append((piece if not pieces else piece[1:]) + [tile.col * self.tile_size, tile.row * self.tile_size])
         line = np.concatenate(pieces)
         start = int(np.argmin(np.hypot(*(line - self.start[:2]).T)))
-        return np.concatenate([line[start:-1], line[:start + 1]]) if closed else line[start:]
+        line = np.concatenate([line[start:-1], line[:start + 1]]) if closed else line[start:]
+        line.flags.writeable = False
+        return line
 
     def lap_length(self) -> float:
         """The centerline's length, m."""
@@ -289,8 +304,9 @@ def parse_track(data: dict[str, Any], source: str) -> Track:
                          f"({track.tile_size} m)")
     if not all(math.isfinite(v) for v in track.start):
         raise TrackError(f"{source}: start: must be three finite numbers: x, y (m), yaw (rad)")
-    if not track.tiles:
-        raise TrackError(f"{source}: tile: a track needs at least one [[tile]]")
+    if not 0 < len(track.tiles) <= MAX_TILES:
+        raise TrackError(f"{source}: tile: a track needs 1 to {MAX_TILES} [[tile]] tables, "
+                         f"got {len(track.tiles)}")
     first: dict[tuple[int, int], int] = {}
     for i, tile in enumerate(track.tiles):
         if abs(tile.col) > 1000 or abs(tile.row) > 1000:

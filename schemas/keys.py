@@ -118,6 +118,10 @@ PLAN = Topic("nav/plan", m.PlanRequest, "query", reply=m.Plan)
 NAV_PATH = Topic("nav/path", m.NavPath, "in")
 """A path for the follower to drive (services/follower, or your own)."""
 NAV_STATUS = Topic("nav/status", m.FollowStatus, "out")
+JUDGE_STATE = Topic("judge/state", m.JudgeState, "out")
+"""The lap judge's lap in progress: time, penalties, latest events (services/judge, docs/judge.md)."""
+JUDGE_LAP = Topic("judge/lap", m.JudgeLap, "out")
+"""One lap's result at its end (services/judge)."""
 
 TABLE: dict[str, Topic] = {
     t.name: t
@@ -128,7 +132,7 @@ TABLE: dict[str, Topic] = {
         BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, EXTLOC_POSE, TRUTH, SIM_GPIO,
         ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL, FRAMES, FRAME, CAMERA_INFO,
         MAP_GRID, PLAN, NAV_PATH, NAV_STATUS,
-        MAP_LANDMARKS, SLAM_POSE, SLAM_MAP,
+        MAP_LANDMARKS, SLAM_POSE, SLAM_MAP, JUDGE_STATE, JUDGE_LAP,
     )
 }  # fmt: skip
 

@@ -437,6 +437,10 @@ class Truth(Message):
     """True while the robot pushes against an obstacle of the world (it does not move into it)."""
     collisions: int = 0
     """Times the robot has run into an obstacle since the simulator started."""
+    sim_time: float = 0.0
+    """Simulated seconds since the simulator started, when this pose was true (its 1 kHz clock:
+    exact where a busy machine makes it drop steps and the wall clock is not; 0 = not given). The
+    lap judge times laps by it."""
 
 
 # --------------------------------------------------------------------------- maps of landmarks
@@ -835,6 +839,81 @@ class OledFrame(Message):
     height: int
     pixels: bytes
     """1 bit per pixel, row-major, most significant bit first; width * height / 8 bytes."""
+
+
+# --------------------------------------------------------------------------- the lap judge (out)
+
+
+class JudgeEvent(Message):
+    """One thing the lap judge saw (services/judge, docs/judge.md): a lap's start or end, a penalty
+    (``tyre_off``, ``bogged``, ``ran_stop``) or a stop at a stop sign that counted (``stopped``)."""
+
+    stamp: int
+    """When it happened, ns since the epoch (the simulator's truth's clock; a line crossing's time
+    is interpolated between two truth samples)."""
+    kind: Literal["lap_start", "lap_end", "tyre_off", "bogged", "ran_stop", "stopped"]
+    lap: int = 0
+    """The lap it counts in (1 = the first; 0 = before the first lap started: no penalty)."""
+    penalty: float = 0.0
+    """Seconds it adds to the lap's score (0 for lap_start, lap_end, stopped, and before a lap)."""
+    x: float = 0.0
+    """Where the robot's centre was, world frame, m."""
+    y: float = 0.0
+    """m."""
+    text: str = ""
+    """What happened, in words ("left tyre off the road")."""
+
+
+class JudgeState(Message):
+    """``judge/state``: the lap in progress, a few times a second (``judge.rate_hz``)."""
+
+    stamp: int
+    """The newest truth sample's time, ns since the epoch."""
+    track: str
+    """The track's name."""
+    lap: int
+    """The lap in progress (1 = the first); 0 before the robot first crossed the start line."""
+    lap_time: float
+    """Time since the lap started, s (0 before the first lap)."""
+    penalties: float
+    """Penalty seconds of this lap so far."""
+    tyre_off: int = 0
+    """Tyres that left the road in this lap (+1 s each)."""
+    bogged: int = 0
+    """Times the whole robot left the road in this lap (+5 s each)."""
+    ran_stop: int = 0
+    """Stop signs passed without a stop in this lap (+10 s each)."""
+    laps: int = 0
+    """Laps finished so far."""
+    best_score: float = 0.0
+    """Best score of a finished lap, s (0 = none finished)."""
+    events: list[JudgeEvent] = []
+    """The latest events (up to 10), oldest first."""
+
+
+class JudgeLap(Message):
+    """``judge/lap``: one lap's result, once at its end (and the results file's lines)."""
+
+    stamp: int
+    """When the lap ended (crossed the start/finish line), ns since the epoch."""
+    track: str
+    lap: int
+    """1 = the first lap."""
+    time: float
+    """Delivery time: from crossing the start line to crossing it again, s."""
+    penalties: float
+    """Sum of the penalties, s."""
+    reward: float
+    """The no-penalty reward, s (5 when the lap had no penalty, else 0)."""
+    score: float
+    """time + penalties - reward, s (the workshop's score: lower is better)."""
+    tyre_off: int = 0
+    bogged: int = 0
+    ran_stop: int = 0
+    finished: bool = True
+    """False for a lap cut short by the judge's end (written to the results file only)."""
+    events: list[JudgeEvent] = []
+    """The lap's events in order (up to 200)."""
 
 
 # --------------------------------------------------------------------------- housekeeping

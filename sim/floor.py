@@ -56,7 +56,7 @@ def floor_texture(track: Track, seed: int = 1, px_per_m: float = PX_PER_M) -> tu
     x0, y1 = min(cols) * ts - half, max(rows) * ts + half
     width_m, height_m = (max(cols) - min(cols) + 1) * ts, (max(rows) - min(rows) + 1) * ts
     px_per_m = min(px_per_m, math.sqrt(MAX_PIXELS / (width_m * height_m)))
-    w, h = max(1, round(width_m * px_per_m)), max(1, round(height_m * px_per_m))
+    w, h = max(1, int(width_m * px_per_m)), max(1, int(height_m * px_per_m))
     m = width_m / w  # m per pixel (the same along y, up to rounding)
     world_from_texture = np.array([[m, 0.0, x0 + m / 2], [0.0, -height_m / h, y1 - height_m / h / 2],
                                    [0.0, 0.0, 1.0]])
@@ -82,7 +82,8 @@ def floor_texture(track: Track, seed: int = 1, px_per_m: float = PX_PER_M) -> tu
                                  (~urban & ~road, GRASS, 14), (~urban & road, DIRT, 10)):
         texture[mask] = np.float32(colour) + amount * grain[mask]
     # Urban edge lines: where the distance to the road's edge is within the line's band.
-    inside = cv2.distanceTransform(road.astype(np.uint8), cv2.DIST_L2, 5) * m
+    # (distanceTransform measures centre to centre: the edge itself lies half a pixel nearer)
+    inside = (cv2.distanceTransform(road.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) - 0.5) * m
     edge = urban & (inside > EDGE_INSET) & (inside <= EDGE_INSET + LINE_WIDTH)
     paint = np.zeros((h, w), np.uint8)
     paint[edge] = 1

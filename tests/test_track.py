@@ -105,6 +105,7 @@ BAD = [
     ({"start": [5.0, 5.0, 0.0]}, "start"),
     ({"start": [0.3, 0.0, math.pi / 2]}, "start"),  # across the road
     ({"tile": []}, "tile"),
+    ({"tile": [{"kind": "cross", "col": c % 60, "row": c // 60} for c in range(2501)]}, "tile: a track needs 1 to"),
     ({"tile": [{"kind": "hairpin", "col": 0, "row": 0}]}, "tile[0].kind"),
     ({"tile": [{"kind": "straight", "col": 0, "row": 0, "rotation": 45}]}, "tile[0].rotation"),
     ({"tile": [{"kind": "straight", "col": 0, "row": 0, "look": "desert"}]}, "tile[0].look"),

@@ -32,6 +32,7 @@ from icefloe.schemas import messages as m
 from icefloe.vision.capture import Capture
 from icefloe.vision.geometry import Intrinsics
 from icefloe.vision.sources import Frame, SourceError, picamera2_class
+from icefloe.worldmap import load_world
 
 from .detection import make_detector
 from .frames import Frames, camera_info
@@ -46,6 +47,8 @@ async def main(config: RobotConfig) -> None:
     if cam.source == "picamera2":
         picamera2_class()  # CameraMissing: one line, exit 2 (run() says it), no restart
     detector = make_detector(config)  # ConfigError for a bad calibration file: run() says so, exits
+    if cam.source == "sim":
+        load_world(config.sim.world)  # a bad world or track layout: ConfigError, one line, no retrying
     info = camera_info(cam, Intrinsics.from_config(cam))
     async with Node("camera", config) as node:
         small = Frames(cam)

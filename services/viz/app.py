@@ -78,6 +78,8 @@ STREAMS = (
     Stream(keys.LANDMARKS, RobotLogger.landmarks, rate_hz=10),
     Stream(keys.NAV_PATH, RobotLogger.path),  # a few per run
     Stream(keys.NAV_STATUS, RobotLogger.nav_status),  # logged only when the state changes
+    Stream(keys.JUDGE_STATE, RobotLogger.judge, rate_hz=5),  # the lap judge (docs/judge.md)
+    Stream(keys.JUDGE_LAP, RobotLogger.judge_lap, latest=False),  # once a lap
     Stream(keys.IMAGE, RobotLogger.image, rate_hz=10),
     Stream(keys.BATTERY, RobotLogger.battery),
     Stream(keys.HW_BATTERY, RobotLogger.battery_raw, rate_hz=5),

@@ -22,6 +22,11 @@ map/obstacles                      the world file's walls and boxes (static)   l
 map/grid                           the occupancy grid, a cell per pixel        map/grid (a query)
 map/path                           the path the follower drives ([] clears)    nav/path
 log/nav                            the follower's state, on each change        nav/status
+map/judge/penalties                the lap judge's penalties where they        judge/state
+                                   happened, labelled (cleared at a lap start)
+judge/{lap_time,penalties}         the lap in progress: time, penalty s        judge/state
+judge/lap                          the lap in words (a text document)          judge/state
+log/judge                          each lap's result, each penalty             judge/lap, judge/state
 camera/image, camera/image/markers the JPEG and the detected marker outlines   camera/image, .../landmarks
 oled                               the little screen, one pixel per pixel      oled/frame
 wheels/{left,right}/{target,measured}  commanded vs measured rim speed, m/s    hw/wheels
@@ -84,6 +89,9 @@ CAR_WHEEL_COLOR = (40, 40, 40)
 REFERENCE_MAP_COLOR = (255, 140, 0)
 OBSTACLE_COLOR = (90, 90, 90)
 PATH_COLOR = (255, 60, 200)
+PENALTY_COLORS = {"tyre_off": (255, 170, 0), "bogged": (200, 40, 40), "ran_stop": (160, 0, 200)}
+PENALTY_MARKS = 100
+"""Penalty markers kept on the map per lap (a robot wandering off and on for minutes makes many)."""
 GRID_FREE_COLOR = (255, 255, 255, 20)
 """A free cell: a faint veil, so the map shows where the grid ends."""
 GRID_OCCUPIED_COLOR = (140, 140, 140, 190)
@@ -262,6 +270,8 @@ class RobotLogger:
         self._ray_pose: dict[str, tuple[float, float, float]] = {}
         self._nav_state: tuple[str, int, str] | None = None
         self._grid: tuple[object, ...] | None = None
+        self._penalties: dict[tuple[int, str], m.JudgeEvent] = {}
+        self._judge_lap = 0
         self.car_size = car_size
         """(wheelbase, track) m of the car drawn: the robot's (its ``info``, live), else the config's."""
 
@@ -351,6 +361,39 @@ class RobotLogger:
         why = f": {msg.reason}" if msg.reason else ""
         self._log("log/nav", rr.TextLog(f"{msg.state} path {msg.seq} ({msg.points} points){why}",
                                            level="WARN" if msg.state == "stopped" else "INFO"))
+
+    def judge(self, msg: m.JudgeState) -> None:
+        """The lap judge's lap in progress: time and penalty seconds as scalars, the lap in words,
+        each new penalty as a marker where it happened (labelled) and a log line."""
+        self._at(msg.stamp)
+        new_lap = msg.lap != self._judge_lap
+        if new_lap:  # its penalties start afresh
+            self._judge_lap = msg.lap
+            self._penalties.clear()
+        fresh = [e for e in msg.events
+                 if e.penalty > 0 and e.lap == msg.lap and (e.stamp, e.kind) not in self._penalties]
+        for event in fresh:
+            if len(self._penalties) < PENALTY_MARKS:
+                self._penalties[(event.stamp, event.kind)] = event
+            self._log("log/judge", rr.TextLog(f"lap {event.lap}: {event.text} (+{event.penalty:.0f} s)", level="WARN"))
+        if fresh or new_lap:
+            marks = list(self._penalties.values())
+            self._log("map/judge/penalties",
+                      rr.Points2D([(e.x, e.y) for e in marks], radii=0.03, show_labels=True,
+                                  colors=[PENALTY_COLORS.get(e.kind, MARKER_COLOR) for e in marks],
+                                  labels=[f"+{e.penalty:.0f} s {e.kind.replace('_', ' ')}" for e in marks]))
+        self._log("judge/lap_time", rr.Scalars(msg.lap_time))
+        self._log("judge/penalties", rr.Scalars(msg.penalties))
+        best = f", best score {msg.best_score:.2f} s of {msg.laps} laps" if msg.laps else ""
+        lap = (f"lap {msg.lap}: {msg.lap_time:.1f} s, penalties {msg.penalties:.0f} s (tyres {msg.tyre_off}, "
+               f"bogged {msg.bogged}, stop signs run {msg.ran_stop})" if msg.lap else "waiting at the start line")
+        self._log("judge/lap", rr.TextDocument(f"{msg.track}: {lap}{best}"))
+
+    def judge_lap(self, msg: m.JudgeLap) -> None:
+        """One lap's result, as a log line."""
+        self._at(msg.stamp)
+        self._log("log/judge", rr.TextLog(f"lap {msg.lap} of {msg.track}: {msg.time:.2f} s + {msg.penalties:.0f} s "
+                                          f"- {msg.reward:.0f} s = {msg.score:.2f} s", level="INFO"))
 
     def _pose(self, name: str, stamp: int, x: float, y: float, theta: float, color: tuple[int, int, int]) -> None:
         self._at(stamp)

@@ -5,6 +5,7 @@
 //   GET /bus/icefloe/<robot>/**?_rate=10  (Accept: text/event-stream): every key of the robot, at
 //                                          most 10 samples a second each, and its services' tokens
 //   GET /bus/log                          (event stream): every log line, in order
+//   (judge/state among them: the lap judge's lap in progress, shown when a judge runs)
 //   PUT /bus/cmd/twist, PUT /bus/cmd/stop: drive and stop
 //   PUT /bus/cmd/car                      : drive as the robot's virtual car ("as a car"); its
 //                                          state, car/state, comes with the robot's keys above
@@ -84,6 +85,9 @@ function onSample(sample, kind) {
     case "hw/hold":
       showHold(v);
       break;
+    case "judge/state":
+      showJudge(v);
+      break;
   }
 }
 
@@ -97,6 +101,28 @@ function showHold(hold) {
   $("hold").title = `since ${new Date(hold.since / 1e6).toLocaleTimeString()}; driving is refused until ${who} releases it`;
   if (drive.timer !== null) drive.stop("held by the lab's TA: stopped");
   drive.show(`held by the lab's TA: driving is refused until ${who} releases it`);
+}
+
+function showJudge(state) {
+  // The lap judge's lap in progress (judge/state): time, penalties, the latest events.
+  $("judge-box").hidden = false;
+  $("judge-track").textContent = state.track;
+  $("judge-lap").textContent = state.lap ? String(state.lap) : "– (waiting at the start line)";
+  $("judge-time").textContent = state.lap_time.toFixed(1);
+  $("judge-penalties").textContent = state.penalties.toFixed(0);
+  $("judge-tyres").textContent = state.tyre_off;
+  $("judge-bogged").textContent = state.bogged;
+  $("judge-stops").textContent = state.ran_stop;
+  $("judge-best").textContent = state.laps
+    ? `${state.laps} laps done, best score ${state.best_score.toFixed(2)} s` : "";
+  $("judge-events").replaceChildren(
+    ...state.events.map((e) => {
+      const item = document.createElement("li");
+      item.className = e.penalty > 0 ? "penalty" : "";
+      item.textContent = e.penalty > 0 ? `${e.text} (+${e.penalty.toFixed(0)} s)` : e.text;
+      return item;
+    }),
+  );
 }
 
 function showCar(state) {
