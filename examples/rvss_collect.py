@@ -104,12 +104,12 @@ def main() -> None:
     parser.add_argument("--folder", default="data/train", help="where the images go (made if missing)")
     parser.add_argument("--countdown", type=int, default=3, help="seconds of 'Get ready' before it drives")
     args = parser.parse_args()
-    if not sys.stdin.isatty():
-        sys.exit("rvss_collect: the keys come from the terminal: run it in one (stdin is not a terminal)")
     try:
         pibot = load_client(args.client)
     except ClientNotFound as error:
         sys.exit(f"rvss_collect: {error}")
+    if not sys.stdin.isatty():
+        sys.exit("rvss_collect: the keys come from the terminal: run it in one (stdin is not a terminal)")
     folder = Path(args.folder)
     folder.mkdir(parents=True, exist_ok=True)
 
