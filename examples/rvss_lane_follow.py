@@ -149,10 +149,10 @@ CORNER_RADIUS = 0.15
 """m: the arc a sharp corner is driven on (the road's centre line through a 90-degree corner)."""
 
 
-def road_end_row(mask: np.ndarray) -> int | None:
-    """The row of the road's far edge straight ahead when the road ends below the far band at a
-    *straight* edge across the picture (a 90-degree corner's outer side, met head on); None when
-    the road goes on beyond the far band, bends away (a round curve's edge slopes), or is not there."""
+def road_ahead(mask: np.ndarray) -> tuple[int | None, bool]:
+    """Straight ahead (the picture's middle columns): the row of the road's far edge (None: no
+    road there at all), and whether that edge is level across the middle (a 90-degree corner's
+    outer side met head on is; a round curve's outer edge slopes by several times more)."""
     height, width = mask.shape
 
     def top(fraction: float) -> int | None:
@@ -161,9 +161,8 @@ def road_end_row(mask: np.ndarray) -> int | None:
         return int(road_rows[0]) + height // 2 if len(road_rows) else None
 
     tops = [top(f) for f in (0.35, 0.5, 0.65)]
-    if any(t is None for t in tops) or tops[1] <= FAR_BAND[1] * height:
-        return None
-    return tops[1] if max(tops) - min(tops) <= FLAT_EDGE * height else None
+    level = all(t is not None for t in tops) and max(tops) - min(tops) <= FLAT_EDGE * height  # type: ignore[type-var]
+    return tops[1], level
 
 
 def road_side(mask: np.ndarray, below: int) -> int:
@@ -193,12 +192,13 @@ class LaneFollower:
 
     def steer(self, bgr: np.ndarray) -> Steering:
         mask = road_mask(bgr)
-        end = road_end_row(mask)
-        if end is None:
-            self.corner_side = 0
-        elif not self.corner_side:
+        end, level = road_ahead(mask)
+        if end is not None and end <= FAR_BAND[1] * mask.shape[0]:
+            self.corner_side = 0  # the road goes on ahead
+        elif end is not None and not self.corner_side:
             self.corner_side = road_side(mask, end)  # seen while the corner is still ahead
-        if end is not None and end >= CORNER_ROW * mask.shape[0] and self.corner_side:
+        # Turn when the corner's edge is near, or at once if it was missed (no road ahead at all).
+        if self.corner_side and (end is None or (level and end >= CORNER_ROW * mask.shape[0])):
             self.last = Steering(0.0, 1.0, True, self.corner_side)
             self.corner_side = 0
             return self.last

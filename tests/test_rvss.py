@@ -51,7 +51,7 @@ START_BACK = 0.1
 # ----------------------------------------------------------------------------- simulated time
 
 
-def render_and_drive(world: str | Path, seconds: float, latency_frames: int = 1) -> dict:
+def render_and_drive(world: str | Path, seconds: float, latency_frames: int = 6) -> dict:
     """Drive the follower's `Driver` round ``world``'s track on the simulated camera's frames
     (a unicycle, exact wheel speeds, 15 frames a second): where the tyres left the road, where it
     stopped (its front's distance before each sign's line), how far it went."""
