@@ -249,11 +249,14 @@ frames of the simulated camera (a 0.1 m sign 0.22 m beside the road's centre; 0.
 sign leaves a level camera's view 0.35 m before its line, so the last part is driven blind."""
 STOP_BEFORE_M = 0.05
 """Where the front stops: this far before the line (the judge counts 0-10 cm)."""
-LATENCY_S = 0.45
+LATENCY_S = 0.3
 """s from the camera's exposure to the wheels obeying a command, through the web API: the frame's
-way (capture, JPEG, the MJPEG stream, OpenCV's reader), the command's, and the wheels' slowing
-down. The run up to a stop line ends this much earlier. Measured on the simulator: the robot
-stood 9 cm beyond where it aimed without it, at 0.16 m/s (docs/rvss.md)."""
+way (capture, JPEG, the MJPEG stream, OpenCV's reader) and the command's. The robot is this much
+further on than its picture shows: a corner's arc starts tighter, the run up to a stop line ends
+earlier. Measured on the simulator (docs/rvss.md): without it the robot stood 9 cm beyond where it
+aimed at 0.16 m/s, and cut a sharp corner by 4 cm with 0.45 s."""
+STOPPING_S = 0.15
+"""s the wheels take to come to a stand once told to stop (the run up ends this much earlier too)."""
 
 
 @dataclass
@@ -300,7 +303,7 @@ class Driver:
                 to_line = SIGN_LINE_M[0] / width + SIGN_LINE_M[1]
                 self.run_speed = self.kd * (1 - self.slow)
                 run_up = max(0.0, to_line - STOP_BEFORE_M) / (self.run_speed * DEMAND_MPS)
-                self.stop_at = now + max(0.0, run_up - self.latency_s)
+                self.stop_at = now + max(0.0, run_up - self.latency_s - STOPPING_S)
                 self.log.append(f"{now:.1f} s: stop sign, its line {to_line:.2f} m ahead")
         speed = self.run_speed if self.stop_at is not None else self.kd * (1 - self.slow * steering.bend)
         if steering.corner:
