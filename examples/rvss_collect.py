@@ -134,6 +134,10 @@ def main() -> None:
                     print({"up": "straight", "right": "right", "left": "left"}.get(key, key), flush=True)
                 image = bot.getImage()
                 angle = float(np.clip(angle, -0.5, 0.5))
+                if image is None:  # the client's reader lost the stream: no picture, no driving
+                    bot.setVelocity(0, 0)
+                    time.sleep(PERIOD_S)
+                    continue
                 left, right = wheel_speeds(angle)
                 bot.setVelocity(left, right)
                 cv2.imwrite(str(folder / image_name(number, angle)), image)
@@ -144,6 +148,9 @@ def main() -> None:
     finally:
         bot.setVelocity(0, 0)
     print(f"stop: {number - args.im_num} images in {folder}, the next is --im_num {number}", flush=True)
+    # pibot_client's camera thread never ends (a daemon blocked in OpenCV's read): a normal
+    # interpreter exit tears it down mid-read and the process aborts ("FATAL: exception not rethrown").
+    os._exit(0)
 
 
 if __name__ == "__main__":

@@ -397,11 +397,20 @@ def main() -> None:
     driver = Driver(kd=args.kd, ka=args.ka, slow=args.slow, stop_wait=args.stop_wait)
     done = 0
     frames = 0
+    blind = False
     started = time.monotonic()
     print("driving: Ctrl-C stops", flush=True)
     try:
         while laps is None or done < args.laps:
             image = bot.getImage()
+            if image is None:  # the client's reader lost the stream (its read gave no frame): stand
+                bot.setVelocity(0, 0)
+                if not blind:
+                    print("no picture from the camera: standing until one comes", flush=True)
+                blind = True
+                time.sleep(0.1)
+                continue
+            blind = False
             frames += 1
             left, right = driver.step(image, time.monotonic() - started)
             bot.setVelocity(left, right)

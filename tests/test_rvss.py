@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import math
 import os
 import re
@@ -287,6 +288,46 @@ async def test_the_lane_follower_drives_a_scored_lap_through_the_workshop_client
         await stood(node, timeout=30)  # it ended with setVelocity(0, 0)
 
 
+EVERY_CALL = """
+import json, os, sys
+sys.path.insert(0, os.path.dirname(sys.argv[1]))
+from pibot_client import PiBot
+bot = PiBot(ip="127.0.0.1", port=int(sys.argv[2]))
+image = bot.getImage()
+answers = {
+    "getImage": list(image.shape),
+    "setVelocity": bot.setVelocity(20, 20),
+    "setVelocity timed": bot.setVelocity(20, 20, duration=0.3),
+    "setVelocity ramped": bot.setVelocity(20, 20, 0.6, 0.2),
+    "stop": bot.stop(),
+    "setLED": bot.setLED(2, True), "pulseLED": bot.pulseLED(3, 0.1), "getDIP": bot.getDIP(),
+    "getButton": bot.getButton(), "setLEDArray": bot.setLEDArray(5), "printfOLED": bot.printfOLED("hi %d", 1),
+    "setScreen": bot.setScreen(1), "getVoltage": bot.getVoltage(), "getCurrent": bot.getCurrent(),
+    "getEncoders": bot.getEncoders(), "resetPose": bot.resetPose(), "resetEncoder": bot.resetEncoder(),
+}
+print(json.dumps(answers), flush=True)
+os._exit(0)  # the client's camera thread never ends
+"""
+"""Every method of the workshop's client but the localiser's, called through the unchanged file."""
+
+
+async def every_call_of_the_client(client: Path, port: int) -> None:
+    """Each call of pibot_client's PiBot that talks to the robot gets an answer from the web API
+    (the localiser's two go to another server: tests/test_extloc_overhead_lab.py)."""
+    done = await asyncio.to_thread(subprocess.run, [sys.executable, "-c", EVERY_CALL, str(client), str(port)],
+                                   capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert done.returncode == 0, done.stdout + done.stderr
+    answers = json.loads(done.stdout.splitlines()[-1])
+    assert answers["getImage"] == [240, 320, 3]
+    for call in ("setVelocity", "setVelocity timed", "setVelocity ramped", "stop"):
+        assert isinstance(answers[call], dict), (call, answers[call])  # resp.json() of a 200
+    for call in ("setLED", "pulseLED", "setLEDArray", "printfOLED", "setScreen", "resetPose", "resetEncoder"):
+        assert answers[call] is True, (call, answers)
+    assert 0 <= answers["getDIP"] <= 15 and answers["getButton"] >= 0
+    assert 6.0 < answers["getVoltage"] < 9.0 and answers["getCurrent"] >= 0
+    assert len(answers["getEncoders"]) == 2
+
+
 async def test_collect_saves_images_named_by_the_steering_the_keys_gave(make_robot, tmp_path) -> None:
     """The collect example in a terminal, keys typed as a team would (arrows, then space): images
     from the unchanged client's getImage, named as collect.py names them, numbered without a gap,
@@ -298,6 +339,7 @@ async def test_collect_saves_images_named_by_the_steering_the_keys_gave(make_rob
     client.write_bytes(source(RVSS_WORKSHOP_CLIENT))
     robot, port = rvss_robot(make_robot, tmp_path)
     await start_rvss_stack(robot, port, ("sim", "hwbridge", "camera", "webapi"))
+    await every_call_of_the_client(client, port)
     folder = tmp_path / "data" / "train"
     term = Terminal([sys.executable, str(ROOT / "examples" / "rvss_collect.py"), "--client", str(client),
                      "--ip", "127.0.0.1", "--port", str(port), "--folder", str(folder), "--countdown", "0"],
