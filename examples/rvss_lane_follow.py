@@ -323,11 +323,13 @@ class Driver:
 
 class LapWatch:
     """Laps the judge ends from now on, read in the background over the web API's bus bridge:
-    ``GET /bus/judge/lap?_raw`` (the latest lap result; the bridge follows the key from the first
-    GET, so a lap ended before we started is not counted, and answers 503 while there is none)."""
+    ``GET /bus/judge/lap?_raw``, the latest lap result (503 while the bridge has none). The bridge
+    may hold one from before we started (a channel another GET opened): a lap counts only if it
+    ended after we started (its stamp, wall clock ns)."""
 
     def __init__(self, ip: str, port: int) -> None:
         self.base = f"http://{ip}:{port}/bus/judge"
+        self.since_ns = time.time_ns()
         self.laps = 0
         self.last_lap: dict | None = None
         """The judge's latest lap result (its ``judge/lap`` as JSON: time, penalties, reward, score)."""
@@ -354,7 +356,7 @@ class LapWatch:
                           "until it is", flush=True)
                     complained = True
                 lap = self._get("lap")
-                if lap is not None and lap.get("stamp") != seen:
+                if lap is not None and lap.get("stamp") != seen and int(lap.get("stamp", 0)) > self.since_ns:
                     seen = lap.get("stamp")
                     with self.lock:
                         self.laps, self.last_lap = self.laps + 1, lap
