@@ -327,8 +327,9 @@ class LapWatch:
     may hold one from before we started (a channel another GET opened): a lap counts only if it
     ended after we started (its stamp, wall clock ns)."""
 
-    def __init__(self, ip: str, port: int) -> None:
+    def __init__(self, ip: str, port: int, period_s: float = 0.5) -> None:
         self.base = f"http://{ip}:{port}/bus/judge"
+        self.period_s = period_s
         self.since_ns = time.time_ns()
         self.laps = 0
         self.last_lap: dict | None = None
@@ -356,18 +357,22 @@ class LapWatch:
                           "until it is", flush=True)
                     complained = True
                 lap = self._get("lap")
-                if lap is not None and lap.get("stamp") != seen and int(lap.get("stamp", 0)) > self.since_ns:
-                    seen = lap.get("stamp")
-                    with self.lock:
-                        self.laps, self.last_lap = self.laps + 1, lap
-                    print(f"judge: lap {lap.get('lap')}: {lap.get('time', 0):.2f} s, penalties "
-                          f"{lap.get('penalties', 0):g} s, reward {lap.get('reward', 0):g} s, score "
-                          f"{lap.get('score', 0):.2f} s", flush=True)
-            except (OSError, ValueError) as error:  # URLError and HTTPError are OSErrors
+                if lap is not None:
+                    if not isinstance(lap, dict) or not isinstance(lap.get("stamp"), int):
+                        raise ValueError(f"judge/lap is not a lap: {str(lap)[:80]!r}")
+                    if lap["stamp"] != seen and lap["stamp"] > self.since_ns:
+                        seen = lap["stamp"]
+                        said = (f"judge: lap {lap.get('lap')}: {float(lap.get('time', 0)):.2f} s, penalties "
+                                f"{float(lap.get('penalties', 0)):g} s, reward {float(lap.get('reward', 0)):g} s, "
+                                f"score {float(lap.get('score', 0)):.2f} s")
+                        with self.lock:
+                            self.laps, self.last_lap = self.laps + 1, lap
+                        print(said, flush=True)
+            except (OSError, ValueError, TypeError) as error:  # URLError and HTTPError are OSErrors
                 if not complained:
-                    print(f"no judge at {self.base} ({error}): laps are not counted", flush=True)
+                    print(f"the judge at {self.base}: {error}; laps are not counted until it answers", flush=True)
                     complained = True
-            time.sleep(0.5)
+            time.sleep(self.period_s)
 
     def finished(self) -> int:
         with self.lock:
@@ -388,6 +393,9 @@ def main() -> None:
     parser.add_argument("--stop-wait", type=float, default=Driver.stop_wait, help="how long to stand at a stop sign, s")
     parser.add_argument("--show", action="store_true", help="show the picture and the road mask (needs a desktop)")
     args = parser.parse_args()
+    if args.laps < 0 or args.kd <= 0 or not 0 <= args.slow < 1 or args.stop_wait < 0.5:
+        parser.error("--laps must be 0 or more, --kd more than 0, --slow from 0 to below 1, and --stop-wait at "
+                     "least 0.5 s (the judge's complete stop)")
     try:
         pibot = load_client(args.client)
     except ClientNotFound as error:

@@ -164,6 +164,66 @@ def test_no_client_is_one_line_saying_where_it_looked(tmp_path: Path) -> None:
         assert len(lines) == 1 and "nowhere" in lines[0] and "Traceback" not in done.stderr, lines
 
 
+def test_bad_arguments_and_no_terminal_are_one_line(tmp_path: Path) -> None:
+    """Out-of-range numbers are refused before anything drives; collect without a terminal (its
+    keys come from one) says so, once the client was found."""
+    client = tmp_path / "pibot_client.py"
+    client.write_bytes(source(RVSS_WORKSHOP_CLIENT))
+    runs = [("rvss_lane_follow.py", "--laps", "-1"), ("rvss_lane_follow.py", "--stop-wait", "0.1"),
+            ("rvss_lane_follow.py", "--slow", "1"), ("rvss_collect.py",)]
+    for script, *extra in runs:
+        done = subprocess.run([sys.executable, str(ROOT / "examples" / script), "--client", str(client), *extra],
+                              capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+        assert done.returncode != 0, (script, extra)
+        said = [line for line in done.stderr.splitlines()  # argparse's usage lines, then its one error line
+                if line.strip() and not line.startswith(("usage:", " "))]
+        assert len(said) == 1 and "Traceback" not in done.stderr, (script, extra, done.stderr)
+
+
+def test_a_judge_that_answers_garbage_is_one_line_and_no_lap(capsys: pytest.CaptureFixture[str]) -> None:
+    """The lap count over HTTP: garbage, a wrong shape, a 500 and then a lap from before the
+    example started count nothing and say one line; a new lap counts once."""
+    import http.server
+    import threading
+
+    def new_lap() -> bytes:
+        return f'{{"stamp": {time.time_ns()}, "lap": 2, "time": 1.5}}'.encode()
+
+    # garbage, a wrong shape, no stamp, a lap from before, an error, a new lap; then garbage for good
+    script: list[bytes | None] = [b"not json", b"[1, 2]", b"{}", b'{"stamp": 5, "lap": 1}', None, b"LAP"]
+    served = [0]
+
+    class Judge(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            if self.path.startswith("/bus/judge/state"):
+                body: bytes | None = b'{"laps": 0}'
+            else:
+                body = script[served[0]] if served[0] < len(script) else b"x"
+                body = new_lap() if body == b"LAP" else body
+                served[0] += 1
+            self.send_response(500 if body is None else 200)
+            self.end_headers()
+            self.wfile.write(body or b"")
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Judge)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        watch = follow.LapWatch("127.0.0.1", server.server_address[1], period_s=0.02)
+        deadline = time.monotonic() + 30
+        while served[0] < len(script) + 2:  # the lap, and two answers of garbage after it
+            assert time.monotonic() < deadline, served
+            time.sleep(0.05)
+        assert watch.finished() == 1
+        assert watch.last_lap is not None and watch.last_lap["lap"] == 2
+    finally:
+        server.shutdown()
+    said = [line for line in capsys.readouterr().out.splitlines() if line.strip()]
+    assert len(said) == 2 and "the judge at" in said[0] and said[1].startswith("judge: lap 2: 1.50 s"), said
+
+
 # ----------------------------------------------------------------------------- collect.py's names
 
 
