@@ -43,7 +43,7 @@ from icefloe.vision import calibration
 from icefloe.vision.geometry import Intrinsics, Mount, range_bearing
 from icefloe.worldmap import Board, WorldMap, load_world
 
-from .floor import floor_texture, stop_sign_texture
+from .floor import shared_floor_texture, stop_sign_texture
 
 NEAR = 0.02
 """Points closer than this in front of the lens (m) are not drawn."""
@@ -251,7 +251,7 @@ class CameraRenderer:
         self._colour = self._track is not None
         self._background = self._make_background()
         if self._track is not None:
-            self._floor, self._world_from_floor = floor_texture(self._track, seed)
+            self._floor, self._world_from_floor = shared_floor_texture(self._track, seed)
             self._background = cv2.cvtColor(self._background, cv2.COLOR_GRAY2BGR)
         signs = self._track.signs if self._track is not None else ()
         sign_axes = [board_axes(sign.yaw, 0.0) for sign in signs]

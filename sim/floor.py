@@ -15,6 +15,7 @@ onto each sign's quad with a homography.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -115,6 +116,15 @@ def floor_texture(track: Track, seed: int = 1, px_per_m: float = PX_PER_M) -> tu
     alpha = np.where(tiled, 255, 0).astype(np.uint8)
     bgra = np.dstack([texture.clip(0, 255).astype(np.uint8), alpha])
     return bgra, world_from_texture
+
+
+@functools.lru_cache(maxsize=2)
+def shared_floor_texture(track: Track, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """`floor_texture`, made once per track and seed in a process and shared, read-only: the
+    robot's and the overhead camera's renderers (and a test's several) draw the same floor."""
+    texture, world_from_texture = floor_texture(track, seed)
+    texture.flags.writeable = world_from_texture.flags.writeable = False
+    return texture, world_from_texture
 
 
 def _centre_pieces(kind: str) -> tuple[tuple[int, int], ...]:

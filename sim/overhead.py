@@ -29,7 +29,7 @@ from icefloe.vision.geometry import Intrinsics
 from icefloe.vision.overhead import CameraPose, flat_square_corners, project
 from icefloe.worldmap import WorldMap
 
-from .floor import floor_texture
+from .floor import shared_floor_texture
 
 SUPERSAMPLE = 4
 BODY_RADIUS = 0.14
@@ -87,7 +87,7 @@ class OverheadRenderer:
         """The track's tiles on ``floor`` (BGR): the floor texture through the homography
         texture pixel → world (x, y, 0) → image (the lens is a pinhole)."""
         assert self.world.track is not None
-        texture, world_from_texture = floor_texture(self.world.track)
+        texture, world_from_texture = shared_floor_texture(self.world.track)
         r, t = self.pose.rotation, np.asarray(self.pose.translation, dtype=float).reshape(3)
         h = self.intrinsics.camera_matrix @ np.column_stack([r[:, 0], r[:, 1], t]) @ world_from_texture
         warped = cv2.warpPerspective(texture, h, (self.width, self.height), flags=cv2.INTER_LINEAR,

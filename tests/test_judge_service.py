@@ -4,23 +4,25 @@ The robot starts 10 cm behind the start line (deploy/tracks/loop.toml: x = -0.6 
 straight, driving +x), turned 0.6 rad to the right, and drives straight on at 0.2 m/s: it crosses
 the start line (the lap starts), its right tyre then its left leave the road, then all of it
 (+1 +1 +5 s), seen on ``judge/state``, in the judge's log lines and over HTTP as the robot's web
-page reads it (``/bus/judge/state``). Before it drives, hostile truth on ``sim/truth`` (garbage,
+page reads it (``/bus/judge/state``). Then, put back on the road before the stop sign, it drives
+through it without stopping (+10 s). Before it drives, hostile truth on ``sim/truth`` (garbage,
 a wrong field, a stamp from the past, one far in the future, one without ``sim_time`` where the
 simulator's carry it) is refused with a line each and the judge keeps judging; at SIGINT the lap
 in progress is written to the results file. The robot's page shows the judge's panel in a real
-browser. Measured on 2026-12-07 on this 2-core machine: the run 3.7 to 4.2 s with little beside
-it, 6 to 15 s at load average 6 to 10; the refusal 0.2 to 1.1 s; the page 3.2 to 5.4 s (each
-wait is bounded at 30 s).
+browser. Measured on 2026-12-07 on this 2-core machine at load average 3 to 4 (other work
+beside it): the run 6.2 to 6.9 s, the refusal 0.2 to 0.6 s, the page 4.0 s; the file 12.4 s
+(each wait is bounded at 30 s).
 """
 
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 
 from browser import chromium
 from conftest import free_port, wait_for
-from test_hwbridge_helpers import driving, start_stack
+from test_hwbridge_helpers import driving, sim_state, start_stack
 from webapi_helpers import webapi, webapi_robot
 
 from icefloe.errors import EXIT_CONFIG
@@ -90,11 +92,21 @@ async def test_a_run_off_the_road_is_penalised_on_the_bus(make_robot, tmp_path) 
         status, [sample] = await http.send("GET", "/bus/judge/state")
         assert status == 200 and sample["value"]["bogged"] == 1 and sample["value"]["penalties"] == 7.0, sample
         assert [e["kind"] for e in sample["value"]["events"]][-1] == "bogged"
+
+        # Put back on the road before the stop sign (its line at x = -0.6 m on the top straight; the
+        # traffic it stops drives -x there), then through it without stopping: +10 s.
+        await sim_state(node, "place", x=-0.35, y=0.6, theta=math.pi)
+        async with driving(node, 0.2):
+            await wait_for(lambda: states[-1].ran_stop >= 1 or not judge.alive(), timeout=30)
+        state = states[-1]
+        assert (state.lap, state.ran_stop, state.penalties) == (1, 1, 17.0), state
+        assert state.events[-1].kind == "ran_stop" and abs(state.events[-1].x + 0.6) < 0.02, state.events[-1]
+        assert "lap 1: ran stop sign 0 without stopping: +10 s" in judge.output
         watcher.cancel()
     assert judge.stop() == 0, judge.output
     assert sim.alive()
     lap = codec.decode(results.read_bytes().splitlines()[-1], codec.JSON, m.JudgeLap)
-    assert (lap.lap, lap.finished, lap.bogged, lap.penalties, lap.reward) == (1, False, 1, 7.0, 0.0)
+    assert (lap.lap, lap.finished, lap.bogged, lap.ran_stop, lap.penalties, lap.reward) == (1, False, 1, 1, 17.0, 0.0)
 
 
 async def test_a_world_without_a_track_is_one_line_and_no_restart(robot) -> None:
