@@ -8,17 +8,18 @@ The workshop's loop (its ``scripts/deploy.py``), with OpenCV where the team's ne
 ``getImage()``; a steering ``angle`` from the picture; ``setVelocity(int(Kd + Ka * angle),
 int(Kd - Ka * angle))``. The client is the team's unchanged ``pibot_client`` (examples/rvss_client.py).
 
-* The road: the lower part of the picture (the floor from about 0.2 m to 0.8 m ahead), each row
-  split into road and not road (`road_mask`: the grey asphalt of the urban tiles and the dirt of the
-  rural ones, not the grass, the lane paint or the kerb). The road's centre in a near band and a far
-  band of rows gives the angle: mostly the near band (stay on the road), some of the far band (turn
-  in before a bend). A lane line is not followed on its own: a rural road has none.
-* Speed: ``Kd`` on a straight road, less the more the far band bends (a sharp corner comes up fast).
-* A stop sign: a red blob (`stop_sign`) whose width says it is close: stop, wait ``--stop-wait`` s
-  (the judge wants a full stop within 10 cm before the line), then drive on, not stopping for the
-  same sign again until it has gone out of view.
-* Laps: the judge's ``judge/state`` over the web API's bus bridge (``GET /bus/judge/state``), when a
-  judge runs; without one it drives until Ctrl-C. The end is always ``setVelocity(0, 0)``.
+* The road (`road_mask`): the urban tiles' asphalt with its paint, the rural tiles' dirt; not the
+  grass, the pavement or the plain floor.
+* Its centre (`RoadBand`), in m, from the road's right edge and its known width at each row (the
+  simulated camera is level, 0.1 m up); the angle is proportional to it (`LaneFollower`).
+* Speed: ``Kd`` on a straight road, less where the road ahead bends away.
+* A sharp corner (the road ahead ends at a level edge): a quarter circle onto the new road.
+* A stop sign (a red blob, `stop_sign`): its width says how far its line is; a run up to 5 cm
+  before the line, a stand of ``--stop-wait`` s, then on.
+* Laps: the judge's ``judge/lap`` over the web API's bus bridge (`LapWatch`); without a judge it
+  drives until Ctrl-C. The end is always ``setVelocity(0, 0)``.
+
+docs/rvss.md says why each of these is as it is, and what it measured.
 """
 
 from __future__ import annotations
@@ -48,14 +49,14 @@ class Steering:
     seen: bool
     """False when no road was found (the angle is then the last one)."""
     corner: int = 0
-    """A sharp corner to take now: -1 left, 1 right, 0 none (`corner_ahead`)."""
+    """A sharp corner to take now: -1 left, 1 right, 0 none (`road_ahead`, `road_side`)."""
 
 
 NEAR_BAND = (0.80, 0.92)
 """Rows of the near band, as fractions of the picture's height (with the simulated PenguinPi's
 level camera 0.1 m up, the floor about 0.25-0.35 m ahead of the robot's centre)."""
 FAR_BAND = (0.64, 0.72)
-"""Rows of the far band (the floor about 0.5-0.7 m ahead)."""
+"""Rows of the far band (the floor about 0.5-0.7 m ahead): how much the road bends away."""
 PAINT_PX = 0.1
 """Painted lines are stripes narrower than this, a fraction of the picture's width (the lines
 are 1.5 cm wide: about 15 px of 320 at the nearest floor the camera sees)."""
@@ -183,7 +184,8 @@ class LaneFollower:
         self.near_gain = near_gain
         """Angle per m the road's centre is to the right, near band."""
         self.far_gain = far_gain
-        """The same, far band (turn in before a bend)."""
+        """The same, far band: 0 by default (turning in early cut the round curves' inside: the camera
+        sees the floor from 0.26 m ahead at the nearest, so even the near band leads the robot)."""
         self.near, self.far = RoadBand(NEAR_BAND, camera), RoadBand(FAR_BAND, camera)
         self.last = Steering(0.0, 0.0, False)
         self.centre = 0.0
