@@ -61,6 +61,31 @@ PENGUINPI_PIBOT_CLIENT = CourseFile(
 )
 
 
+RVSS_WORKSHOP_CLIENT = PENGUINPI_PIBOT_CLIENT
+"""The RVSS workshop's robot client (rvss-australia/RVSS_Need4Speed, "Need 4 Speed"): its scripts
+import ``PenguinPi-robot/software/python/client/pibot_client.py``, a git submodule of
+qcr/PenguinPi-robot. From 2024-01-11 (502845b) the workshop pinned e92d66cd, this very file. Its
+commit b41724b (2026-01-09, "update PenguinPi-robot") moved the pin to 16729e23a956, a commit that
+no mirror or index reachable from this project's build machine holds (qcr/PenguinPi-robot's
+snapshot ends at e92d66cd, 2023-07-04), so its hash cannot be written here; checked at that pin:
+the workshop's scripts call only ``PiBot(ip=...)``, ``getImage`` and ``setVelocity(left, right)``,
+which e92d66cd has. A team with the newer checkout passes it to the examples with --client."""
+
+RVSS_COLLECT = CourseFile(
+    repo="rvss-australia/RVSS_Need4Speed",
+    commit="74d367707ab874b8fc26b0a03393d2c7caa44cdf",  # 2026-02-06, "Clarify stop sign rules in Task.md"
+    path="scripts/collect.py",  # keys -> angle -> setVelocity(int(15 + 15a), int(15 - 15a)); names images by angle
+    sha256="bc5e316fb2d66ee55ad8739a98ab9831fc5563426925709bdd919bf2ddae6f9d",
+)
+
+RVSS_STEER_DATASET = CourseFile(
+    repo="rvss-australia/RVSS_Need4Speed",
+    commit="74d367707ab874b8fc26b0a03393d2c7caa44cdf",
+    path="scripts/steerDS.py",  # SteerDataSet: reads the steering back from an image's file name
+    sha256="8482f27aa5a45e27441406df7a7849b16fdf5f785366ea024a93826a48604750",
+)
+
+
 def _from_folder(course: CourseFile) -> bytes | None:
     root = os.environ.get("ICEFLOE_COURSE_CLIENTS")
     path = Path(root) / course.folder / course.path if root else None
