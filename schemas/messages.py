@@ -336,6 +336,10 @@ class Truth(Message):
     """True while the robot pushes against an obstacle of the world (it does not move into it)."""
     collisions: int = 0
     """Times the robot has run into an obstacle since the simulator started."""
+    v: float = 0.0
+    """True speed, m/s, forward (over the simulator's last 1 ms step)."""
+    w: float = 0.0
+    """True turn rate, rad/s, CCW."""
 
 
 # --------------------------------------------------------------------------- maps of landmarks
@@ -546,6 +550,9 @@ class CameraInfo(Message):
     source: str
     """Where the calibration came from: the calibration file's path, or "nominal" (``camera.focal_px``,
     no distortion: the camera was never calibrated)."""
+    capture_latency_s: float = 0.0
+    """Taken off every frame's stamp (and so off ``camera/landmarks``' and the images'), s: the time
+    from a frame's exposure to its arrival, as the calibration measured it (0: none measured)."""
 
 
 class Landmark(Message):

@@ -69,8 +69,8 @@ async def main(config: RobotConfig) -> None:
             node.log.error("cannot start the simulated %s: %s", config.board.kind, exc)
             raise SystemExit(1) from None
         try:
-            node.log.info("simulating a %s; world seed %d (sim.seed = %d repeats this run)",
-                          sim.kind, sim.world.seed, sim.world.seed)
+            node.log.info("simulating a %s, %s profile; world seed %d (sim.seed = %d repeats this run)",
+                          sim.kind, config.sim.profile, sim.world.seed, sim.world.seed)
             ready.set_result(sim)
             sim.start()
             async with asyncio.TaskGroup() as tasks:
@@ -104,8 +104,9 @@ async def _truth(node: Node, sim: Simulator) -> None:
         if not sim.clock.running:
             raise RuntimeError("the simulation clock stopped (see the traceback above)")
         x, y, theta = sim.world.pose
+        v, w = sim.world.velocity
         pub.put(m.Truth(stamp=time.time_ns(), x=x, y=y, theta=theta, collided=sim.world.collided,
-                        collisions=sim.world.collisions))
+                        collisions=sim.world.collisions, v=v, w=w))
         deadline = max(deadline + period, time.monotonic())
         await asyncio.sleep(deadline - time.monotonic())
 
