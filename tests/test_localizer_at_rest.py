@@ -1,0 +1,88 @@
+"""The localizer at rest on rendered frames, with the marker detector's corner inset undone (the calibration
+`icefloe calibrate` measures with a ChArUco board of the robot's dictionary, docs/camera.md) and without:
+sim + hwbridge + odometry + camera + localizer as real processes, the ideal profile, against `sim/truth`.
+
+    .venv/bin/pytest -s tests/test_localizer_at_rest.py     # prints the figures
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import wait_for
+from test_localizer_sim import check_exits, collect
+
+from icefloe import config as config_mod
+from icefloe.schemas import keys
+from icefloe.sim.camera import CameraRenderer, true_intrinsics
+from icefloe.vision import calibration as cal
+from icefloe.vision.geometry import CameraCalibration, Intrinsics, save_calibration
+
+pytestmark = pytest.mark.slow
+
+POSE = (1.0, 0.75, -0.785)
+"""Where the robot stands: markers 1 and 0 in view, 1.25 and 2.19 m away, seen at 37 and 63 degrees from
+square on (the lab has no place that shows three markers between 0.6 and 2.2 m)."""
+HOLD_S = 4.0
+"""How long the pose is watched once both markers have been seen, s."""
+
+
+def calibration_file(folder: Path) -> Path:
+    """The nominal lens (what the ideal profile's camera has) with the inset measured from the calibration
+    world's DICT_4X4_50 ChArUco board, as `icefloe calibrate --keep-intrinsics` would write it."""
+    cfg = config_mod.parse({"sim": {"world": "calibration"}})
+    renderer = CameraRenderer.of_robot(cfg, seed=7)
+    finder = cal.Finder(cal.Board(5, 4, 0.08, "charuco", 0.06, "DICT_4X4_50", 40))
+    views = [v for back in (0.0, 0.15, 0.3, 0.45) for turn in (0, 7, -7, 14, -14)
+             if (v := finder.find(renderer.render(0.0, -back, math.pi / 2 + math.radians(turn))[0])) is not None]
+    lens = Intrinsics.from_config(cfg.camera)
+    result = cal.with_intrinsics(views, true_intrinsics(cfg))
+    fit = cal.measure_inset(views, result)
+    assert fit is not None
+    path = folder / "camera.yaml"
+    save_calibration(path, lens, result.rms, CameraCalibration(fit.inset, 0.0))
+    return path
+
+
+async def watch(robot) -> tuple[float, float]:
+    """(position error m, heading error rad) of loc/pose against the truth, the median over `HOLD_S`."""
+    procs = [robot.start(s) for s in ("sim", "hwbridge", "odometry", "camera", "localizer")]
+    truth, loc, frames = [], [], []
+    async with robot.node("tester") as node:
+        tasks = [asyncio.create_task(collect(node.subscribe(topic, latest=False, maxsize=1024), into))
+                 for topic, into in ((keys.TRUTH, truth), (keys.LOC_POSE, loc), (keys.LANDMARKS, frames))]
+        await wait_for(lambda: truth and len({lm.id for f in frames for lm in f.landmarks}) >= 2, timeout=60)
+        start = len(loc)
+        await asyncio.sleep(HOLD_S)
+        for task in tasks:
+            task.cancel()
+    check_exits(procs)
+    t = truth[-1]
+    held = loc[start:]
+    assert len(held) > 10, "the localizer published too little"
+    position = float(np.median([math.hypot(p.x - t.x, p.y - t.y) for p in held]))
+    heading = float(np.median([abs(math.remainder(p.theta - t.theta, math.tau)) for p in held]))
+    return position, heading
+
+
+@pytest.mark.timeout(300)
+async def test_the_localizer_at_rest_with_the_inset_undone(make_robot, tmp_path) -> None:
+    """Measured (2026-12-07, load 10-13, about 90 s for both runs): as detected 1.86 cm 0.47 deg, inset
+    undone 1.68 cm 0.59 deg. The issue's goal, within 1 cm, is not reached here: at this pose the
+    detector's range errors are per marker, not the inset alone (rendered frames at this pose, 30 frames:
+    marker 1 +1.78 cm as detected, +1.11 cm undone; marker 0, 63 degrees from square on, +0.23 cm as
+    detected, -2.44 cm undone: the inset of a marker seen this obliquely is not the mean one). At
+    (1.0, 0.0, 0.393), markers 2 and 1 at 1.0 and 1.56 m nearer square on: 0.46 cm as detected, 0.45 cm
+    undone."""
+    x, y, theta = POSE
+    where = (f"[sim]\nstart_x = {x}\nstart_y = {y}\nstart_theta = {theta}\nseed = 3\n"
+             f"[localizer]\ninitial_x = {x}\ninitial_y = {y}\ninitial_theta = {theta}\n")
+    plain = await watch(make_robot(where))
+    undone = await watch(make_robot(where + f'[camera]\ncalibration = "{calibration_file(tmp_path)}"\n'))
+    print(f"\nlocalizer at rest, median over {HOLD_S:.0f} s: as detected {plain[0] * 100:.2f} cm "
+          f"{math.degrees(plain[1]):.2f} deg; inset undone {undone[0] * 100:.2f} cm {math.degrees(undone[1]):.2f} deg")
+    assert undone[0] < 0.035 and math.degrees(undone[1]) < 1.5
