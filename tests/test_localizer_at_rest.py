@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,9 +17,7 @@ from test_localizer_sim import check_exits, collect
 
 from icefloe import config as config_mod
 from icefloe.schemas import keys
-from icefloe.sim.camera import CameraRenderer, true_intrinsics
-from icefloe.vision import calibration as cal
-from icefloe.vision.geometry import CameraCalibration, Intrinsics, save_calibration
+from icefloe.sim.camera_calibration import calibrate_camera
 
 pytestmark = pytest.mark.slow
 
@@ -29,23 +26,6 @@ POSE = (1.0, 0.75, -0.785)
 square on (the lab has no place that shows three markers between 0.6 and 2.2 m)."""
 HOLD_S = 4.0
 """How long the pose is watched once both markers have been seen, s."""
-
-
-def calibration_file(folder: Path) -> Path:
-    """The nominal lens (what the ideal profile's camera has) with the inset measured from the calibration
-    world's DICT_4X4_50 ChArUco board, as `icefloe calibrate --keep-intrinsics` would write it."""
-    cfg = config_mod.parse({"sim": {"world": "calibration"}})
-    renderer = CameraRenderer.of_robot(cfg, seed=7)
-    finder = cal.Finder(cal.Board(5, 4, 0.08, "charuco", 0.06, "DICT_4X4_50", 40))
-    views = [v for back in (0.0, 0.15, 0.3, 0.45) for turn in (0, 7, -7, 14, -14)
-             if (v := finder.find(renderer.render(0.0, -back, math.pi / 2 + math.radians(turn))[0])) is not None]
-    lens = Intrinsics.from_config(cfg.camera)
-    result = cal.with_intrinsics(views, true_intrinsics(cfg))
-    fit = cal.measure_inset(views, result)
-    assert fit is not None
-    path = folder / "camera.yaml"
-    save_calibration(path, lens, result.rms, CameraCalibration(fit.inset, 0.0))
-    return path
 
 
 async def watch(robot) -> tuple[float, float]:
@@ -82,7 +62,10 @@ async def test_the_localizer_at_rest_with_the_inset_undone(make_robot, tmp_path)
     where = (f"[sim]\nstart_x = {x}\nstart_y = {y}\nstart_theta = {theta}\nseed = 3\n"
              f"[localizer]\ninitial_x = {x}\ninitial_y = {y}\ninitial_theta = {theta}\n")
     plain = await watch(make_robot(where))
-    undone = await watch(make_robot(where + f'[camera]\ncalibration = "{calibration_file(tmp_path)}"\n'))
+    # the nominal lens (what the ideal profile's camera has) and the inset measured from the calibration
+    # world's DICT_4X4_50 ChArUco board, as `icefloe calibrate --keep-intrinsics` would write them
+    calibrate_camera(config_mod.parse({}), tmp_path / "camera.yaml", seed=7)
+    undone = await watch(make_robot(where + f'[camera]\ncalibration = "{tmp_path / "camera.yaml"}"\n'))
     print(f"\nlocalizer at rest, median over {HOLD_S:.0f} s: as detected {plain[0] * 100:.2f} cm "
           f"{math.degrees(plain[1]):.2f} deg; inset undone {undone[0] * 100:.2f} cm {math.degrees(undone[1]):.2f} deg")
     assert undone[0] < 0.035 and math.degrees(undone[1]) < 1.5
