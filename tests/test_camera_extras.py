@@ -33,7 +33,7 @@ LAB_BOARD = cal.Board(5, 4, 0.08, "charuco", 0.06, "DICT_4X4_50", 40)
 
 
 def range_errors(inset: MarkerInset) -> np.ndarray:
-    """Relative range errors of the lab's markers 0.5-2 m away, the robot at rest at 150 random poses, the
+    """Relative range errors of the lab's markers 0.5-2 m away, the robot at rest at 100 random poses, the
     detector given the true lens and ``inset``."""
     cfg = config_mod.parse({})
     world = load_world("lab")
@@ -42,7 +42,7 @@ def range_errors(inset: MarkerInset) -> np.ndarray:
                         0.12, inset)
     rng = np.random.default_rng(11)
     errors = []
-    for _ in range(150):
+    for _ in range(100):
         x, y, theta = rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2), rng.uniform(-math.pi, math.pi)
         image, truth = renderer.render(x, y, theta)
         found = {lm.id: lm for lm in detector.detect(image)}
@@ -57,8 +57,8 @@ def test_the_measured_inset_takes_the_range_bias_away():
     """The robot looks at the calibration world's ChArUco board of DICT_4X4_50 from 20 places (as
     `calibrate --drive` does); `measure_inset` fits the corners' inset; the lab's markers detected with
     it undone are no longer long. Measured (ideal profile): inset 0.003 + 6.2 / side px (0.23 px at 27 px)
-    from 194 sightings, 0.037 px about the fit; range error mean +0.66 % -> 0.00 %, p50 0.63 % -> 0.19 %,
-    58 sightings. (Realistic profile: +0.73 % -> -0.14 %, p50 0.64 % -> 0.34 %.)"""
+    from 194 sightings, 0.037 px about the fit; range error mean +0.58 % -> -0.05 %, p50 0.61 % -> 0.15 %,
+    37 sightings (150 poses: +0.66 % -> 0.00 %, p50 0.63 % -> 0.19 %, 58 sightings)."""
     cfg = config_mod.parse({"sim": {"world": "calibration"}})
     renderer = CameraRenderer.of_robot(cfg, seed=7)
     finder = cal.Finder(LAB_BOARD)
@@ -73,7 +73,7 @@ def test_the_measured_inset_takes_the_range_bias_away():
     before, after = range_errors(MarkerInset()), range_errors(fit.inset)
     print(f"range error mean {100 * before.mean():+.2f} % -> {100 * after.mean():+.2f} %, p50 "
           f"{100 * np.median(abs(before)):.2f} % -> {100 * np.median(abs(after)):.2f} % ({len(after)} sightings)")
-    assert len(after) >= 50
+    assert len(after) >= 30
     assert before.mean() > 0.004
     assert abs(after.mean()) < 0.002 and np.median(abs(after)) < 0.004
 
