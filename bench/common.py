@@ -105,3 +105,15 @@ def robot_processes(config: Path, runtime_dir: Path | None = None) -> dict[str, 
     if cycles:
         out["hwbridge (cycle)"] = cycles
     return out
+
+
+PI3B_SLOWER = 6.4
+"""How many times longer a Raspberry Pi 3B's core (Cortex-A53, 1.2 GHz) takes than one of the build
+machine's for the same single-threaded work: CPython 3.11's float loop of alexdedyura/cpu-benchmark,
+published for a Pi 3B+ and scaled by clock (1.4 / 1.2), against the same loop here
+(bench/pi_conversion.py; docs/deploy.md, "How much of a Pi 3B the robot leaves to students")."""
+PI3B_RANGE = (5.0, 9.4)
+"""The range of `PI3B_SLOWER`: sysbench's C (detection is OpenCV's C++, the cycle mostly system
+calls) to Salwan's simplebench primes (Python 2.7 on the Pi). docs/deploy.md."""
+PI3B_GOALS = {"standing": 0.5, "driving": 1.0}
+"""The robot side's goals in Pi 3B cores (issue 35): at rest, and driving with detection on."""

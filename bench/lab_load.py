@@ -148,10 +148,10 @@ def robot_flows(config: RobotConfig) -> list[Flow]:
         ("odometry", keys.ODOM_POSE, config.odometry.rate_hz,
          m.Pose(stamp=now, x=1.23456, y=-0.56789, theta=0.78901, v=0.15, w=0.012)),
         # The localizer publishes at its rate and after every landmark update (a frame with markers).
-        ("localizer", keys.LOC_POSE, config.localizer.rate_hz + cam.fps,
+        ("localizer", keys.LOC_POSE, config.localizer.rate_hz + cam.detection_hz,
          m.PoseEstimate(stamp=now, x=1.2301, y=-0.5702, theta=0.7911,
                         covariance=[0.0021, 0.0001, 0.0002, 0.0001, 0.0019, -0.0001, 0.0002, -0.0001, 0.0008])),
-        ("camera", keys.LANDMARKS, cam.fps, landmarks),
+        ("camera", keys.LANDMARKS, cam.detection_hz, landmarks),
         ("camera", keys.IMAGE, cam.image_rate_hz, image),
         ("power", keys.BATTERY, PENGUINPI_BATTERY_HZ, m.Battery(stamp=now, voltage=7.81, current=0.41, state="ok")),
         ("oled", keys.OLED_FRAME, config.display.rate_hz,  # the pose and wheel screens change while driving

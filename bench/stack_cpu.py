@@ -23,6 +23,14 @@ CPU time per frame times ``camera.fps``) and shown as "sim (camera renderer)";
 "camera" is the rest (detection, JPEG images): what the camera service costs on
 a real robot, less reading frames from the camera. The robot-side total is
 every process but the simulator and its renderer, with the router.
+
+The robot side is then converted to cores of the PenguinPi's own computer, a Raspberry Pi 3B
+(Cortex-A53 at 1.2 GHz), with `PI3B_SLOWER` and its range (docs/deploy.md, "How much of a Pi 3B
+the robot leaves to students", from published single-core figures of a Pi 3B+ and the same
+workloads run here: bench/pi_conversion.py), and checked against the goals of issue 35
+(`PI3B_GOALS`: at most 1 Pi 3B core driving with detection on, 0.5 standing). Over a goal at the
+middle factor, the script exits 1 saying so. On a Pi itself, ``--pi3b-slower 1``: a Pi's own
+measurement wins over any conversion.
 """
 
 from __future__ import annotations
@@ -39,7 +47,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import cpu_seconds, free_port, robot_config, robot_processes
+from common import PI3B_GOALS, PI3B_RANGE, PI3B_SLOWER, cpu_seconds, free_port, robot_config, robot_processes
 
 from icefloe.config import ALL_SERVICES, OPTIONAL_SERVICES
 
@@ -203,13 +211,19 @@ def main() -> None:
     p.add_argument("--course", action="store_true",
                    help="run the course's reference services too (grid, planner, follower, mapper, slam), "
                         "each with its budget; the follower drives a planned square")
+    p.add_argument("--pi3b-slower", type=float, default=PI3B_SLOWER,
+                   help=f"times slower a Pi 3B core is than this machine's (default {PI3B_SLOWER:g}, "
+                        "docs/deploy.md; 1 on a Pi 3B itself)")
+    p.add_argument("--camera", action="append", default=[], metavar="KEY=VALUE",
+                   help="a [camera] setting for the robot (TOML), e.g. detection_rate_hz=5.0; repeatable")
     p.add_argument("--drive", action="store_true",
                    help="(for older command lines) both windows, standing and driving, are always measured")
     args = p.parse_args()
     budgets = {**BUDGETS, **(COURSE_BUDGETS if args.course else {})}
-    extra = f"[webapi]\nport = {free_port()}\n"
+    extra = f"[webapi]\nport = {free_port()}\n" + ("[camera]\n" + "\n".join(args.camera) + "\n" if args.camera else "")
     if args.course:
-        extra = f"services = {list(ALL_SERVICES + OPTIONAL_SERVICES)!r}\n" + extra
+        course = [s for s in OPTIONAL_SERVICES if s != "judge"]  # the judge needs a track world (docs/judge.md)
+        extra = f"services = {list(ALL_SERVICES) + course!r}\n" + extra
     config = robot_config(Path(tempfile.mkdtemp()), "cpubench", extra)
     icefloe = [sys.executable, "-m", "icefloe.cli"]
     up = subprocess.Popen([*icefloe, "up", str(config), "--no-viz"], stdout=subprocess.DEVNULL,
@@ -241,6 +255,8 @@ def main() -> None:
         usage_["camera"] = usage_.get("camera", 0.0) - usage_["sim (camera renderer)"]
 
     drive = "the follower driving a planned square" if args.course else "driving"
+    if args.camera:
+        print(f"[camera] {', '.join(args.camera)}")
     print(f"CPU over {args.seconds:.0f} s standing, then {args.seconds:.0f} s {drive}, % of one core "
           f"({os.cpu_count()} cores, load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end)")
     print(f"  {'':<22} {'standing':>9} {'driving':>9}   budget")
@@ -258,12 +274,20 @@ def main() -> None:
                     breaches.append(f"{name} {phase} {used:.1f} % > {limit} %")
         limits = f"{budget[0]:g} / {budget[1]:g}" if budget else "-"
         print(f"  {name:<22} {standing[name]:8.1f}% {driving[name]:8.1f}%   {limits}{marks}")
+    factor = args.pi3b_slower
+    low, high = (factor, factor) if factor != PI3B_SLOWER else PI3B_RANGE
     for label, usage_ in (("standing", standing), ("driving", driving)):
         robot = sum(v for n, v in usage_.items() if n not in SIM)
         course = sum(v for n, v in usage_.items() if n in COURSE_BUDGETS)
         of_which = f" (of which the course's reference services {course:.1f} %)" if args.course else ""
         print(f"robot side {label} (everything but the simulator and its renderer): {robot:.1f} % of one core"
               + of_which)
+        cores, goal = robot / 100 * factor, PI3B_GOALS[label]
+        verdict = "OVER" if cores > goal else "within"
+        print(f"  = {cores:.2f} Pi 3B cores ({robot / 100 * low:.2f} to {robot / 100 * high:.2f}; "
+              f"a Pi 3B core {factor:g}x slower than this machine's); goal <= {goal:g}: {verdict}")
+        if cores > goal:
+            breaches.append(f"robot side {label} {cores:.2f} Pi 3B cores > {goal:g}")
     print(f"simulator with its camera renderer, driving: {sum(driving.get(n, 0.0) for n in SIM):.1f} % "
           f"(the renderer {driving['sim (camera renderer)']:.1f} %, measured in this process)")
     if breaches:

@@ -31,8 +31,15 @@ ensure_venv() {
     sum="$(cat pyproject.toml "$lock/build.txt" "$lock/$extras.txt" 2>/dev/null | cksum | cut -d' ' -f1)"
     [ "$locked" = 1 ] || sum="unlocked-$(cksum < pyproject.toml | cut -d' ' -f1)"
     stamp=".venv/.icefloe-$extras-$sum"
-    if [ "$extras" = viz ] && [ -e ".venv/.icefloe-dev-$sum" ]; then
-        return 0  # the dev extra holds the viz extra: a developer's .venv runs up.sh as it is
+    # the dev extra holds the viz extra: a developer's .venv runs up.sh as it is (the dev stamp's sum is
+    # of dev.txt: without it, the box's `ensure_venv viz`, beside the suite in tests/run.sh, would
+    # install icefloe again into the .venv the suite runs from)
+    local dev_sum="$sum"
+    if [ "$locked" = 1 ]; then
+        dev_sum="$(cat pyproject.toml "$lock/build.txt" "$lock/dev.txt" 2>/dev/null | cksum | cut -d' ' -f1)"
+    fi
+    if [ "$extras" = viz ] && [ -e ".venv/.icefloe-dev-$dev_sum" ]; then
+        return 0
     fi
     if [ "$extras" = planner ] && compgen -G ".venv/.icefloe-*" >/dev/null; then
         return 0  # any install of icefloe plans a robot install too

@@ -36,7 +36,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Awaitable, Callable, Coroutine, Iterator, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
@@ -137,9 +137,9 @@ class _Latest:
         """True once a task keeps this topic's latest value."""
 
 
-OPTIONAL_STATE = (keys.SLAM_POSE, keys.SLAM_MAP, keys.MAP_LANDMARKS, keys.EXTLOC_POSE)
-"""Kept like the robot's state, but from services a robot may not run (slam, mapper, a lab's extloc): `ready()`
-waits for them only when named."""
+OPTIONAL_STATE = (keys.SLAM_POSE, keys.SLAM_MAP, keys.MAP_LANDMARKS, keys.EXTLOC_POSE, keys.CAR_STATE)
+"""Kept like the robot's state, but from services a robot may not run (slam, mapper, a lab's extloc), or
+that comes only once a second while nothing happens (``car/state``): `ready()` waits for them only when named."""
 
 BLINK_MIN_S = 0.05
 """Shortest on or off time of a blinking LED, s (hwbridge takes LED commands every 20 ms)."""
@@ -460,6 +460,7 @@ class AsyncRobot:
                 await asyncio.sleep(0.2)
         await self.node.__aenter__()  # the router answers: this opens at once
         self._wheels = self.node.publisher(keys.WHEELS_CMD)
+        self._car = self.node.publisher(keys.CAR)
         self._stop = self.node.publisher(keys.STOP)
         self._oled = self.node.publisher(keys.OLED_TEXT)
         self.leds = Leds(self.node.publisher(keys.LEDS).put)
@@ -744,6 +745,74 @@ class AsyncRobot:
         while True:
             self._wheels.put(self.command(m.WheelSpeeds, left=left, right=right))
             await asyncio.sleep(period)
+
+    async def drive_car(self, v: float, steer: float, duration: float | None = None) -> None:
+        """Drive as a car (``cmd/car``, the robot's virtual car: docs/motion-models.md): ``v`` m/s
+        forward, the front wheel steered ``steer`` rad (left positive). The car turns on a circle of
+        radius wheelbase / tan(steer); its steering turns towards ``steer`` at the car's steering
+        rate, so a change of angle takes a moment.
+
+        Without ``duration`` it holds until the next command or `stop` (re-sent well within the
+        deadman); with ``duration`` (s) it drives that long, then stops and returns once the robot
+        confirmed the stop (the wheels are stopped also if the call is cancelled). ValueError,
+        naming the limit, for a ``v`` beyond the robot's ``max_wheel_speed`` or a ``steer`` beyond its
+        car's ``max_steer`` (the robot would slow or clip them)::
+
+            await robot.drive_car(0.2, 0.3)                 # a 0.48 m circle to the left, until stop()
+            await robot.drive_car(0.2, -0.3, duration=2.0)  # to the right for 2 s, then stopped
+        """
+        v, steer = _number("v", v), _number("steer", steer)
+        await self._check_speed("v", v)
+        info = await self.info()
+        if not self.clamp and info.max_steer and abs(steer) > info.max_steer:
+            raise ValueError(f"steer: {steer} rad is beyond this robot's car.max_steer, {info.max_steer} rad "
+                             f"({self._info_source})")
+        if duration is not None and (duration := _number("duration", duration)) <= 0:
+            raise ValueError(f"duration: must be > 0 s, got {duration}")
+        self._end_hold()
+        self._moved = True
+        self._hold = asyncio.create_task(self._hold_car(v, steer))
+        if duration is None:
+            return
+        try:
+            await asyncio.sleep(duration)
+        except BaseException:  # cancelled (Ctrl-C in the blocking Robot): the hold ends, the wheels stop
+            self._end_hold("a cancelled drive_car()")
+            self._halt()
+            raise
+        await self.stop()
+
+    async def _hold_car(self, v: float, steer: float) -> None:
+        period = self.config.hwbridge.deadman_s / 4
+        while True:
+            self._car.put(self.command(m.CarDrive, v=v, steer=steer))
+            await asyncio.sleep(period)
+
+    @contextlib.asynccontextmanager
+    async def car(self, v: float = 0.0, steer: float = 0.0) -> AsyncIterator[AsyncRobot]:
+        """Drive as a car while the block runs (`drive_car` with ``v``, ``steer``; call it again in
+        the block to change them); when the block ends, however it ends (an exception, a
+        cancellation), the robot is stopped, and the block's end waits for its confirmation::
+
+            async with robot.car(0.2, 0.3):
+                await asyncio.sleep(2.0)
+                await robot.drive_car(0.2, -0.3)
+                await asyncio.sleep(2.0)
+            # stopped here
+        """
+        await self.drive_car(v, steer)
+        try:
+            yield self
+        finally:
+            self._end_hold("the end of a car() block")
+            await self.stop()
+
+    @property
+    def car_state(self) -> m.CarState | None:
+        """Latest ``car/state``: the virtual car's speed (m/s), steering now and its target (rad, after
+        the rate limit and the clip), and the bicycle model's pose (x, y m, theta rad, from where
+        hwbridge started), to compare with `pose` (odometry)."""
+        return self._latest[keys.CAR_STATE.name].value
 
     def _end_hold(self, why: str = "another command from this program") -> None:
         """End a held velocity, and cut a closed-loop move short (it raises `MotionStopped` saying ``why``)."""
@@ -1244,6 +1313,36 @@ class Robot:
             robot.drive(0.1, 0.5)     # a circle, until robot.stop()
         """
         return self._move(self._r.drive(v, w, duration, accel))
+
+    def drive_car(self, v: float, steer: float, duration: float | None = None) -> None:
+        """Drive as a car: ``v`` m/s, the front wheel at ``steer`` rad (left positive); held until the
+        next command or `stop`, or for ``duration`` s and then stopped; see `AsyncRobot.drive_car`::
+
+            robot.drive_car(0.2, 0.3)     # a 0.48 m circle to the left, until robot.stop()
+        """
+        self._move(self._r.drive_car(v, steer, duration))
+
+    @contextlib.contextmanager
+    def car(self, v: float = 0.0, steer: float = 0.0) -> Iterator[Robot]:
+        """Drive as a car while the block runs; stopped (and confirmed) when it ends, however it
+        ends (an exception, Ctrl-C); see `AsyncRobot.car`::
+
+            with robot.car(0.2, 0.3):
+                time.sleep(2.0)
+                robot.drive_car(0.2, -0.3)
+                time.sleep(2.0)
+        """
+        self.drive_car(v, steer)
+        try:
+            yield self
+        finally:
+            self._call(self._r.stop())
+
+    @property
+    def car_state(self) -> m.CarState:
+        """Latest ``car/state`` (waits for the first): the virtual car's speed, steering and its
+        bicycle-model pose; see `AsyncRobot.car_state`."""
+        return self._state(keys.CAR_STATE.name, lambda r: r.car_state)
 
     def forward(self, distance: float, speed: float = 0.15, *, timeout: float | None = None) -> m.Pose:
         """Drive straight ``distance`` m (negative: back) by odometry, stop; see `AsyncRobot.forward`::

@@ -43,9 +43,9 @@ DEFAULT_ROBOT = "sim"
 """The robot a command means when none is named: the simulated one."""
 ALL_SERVICES = ("info", "sim", "hwbridge", "odometry", "localizer", "camera", "power", "oled", "webapi")
 
-OPTIONAL_SERVICES = ("grid", "planner", "follower", "mapper", "slam")
+OPTIONAL_SERVICES = ("grid", "planner", "follower", "mapper", "slam", "ros2", "judge")
 """icefloe's services `icefloe up` starts only when ``services`` names them (docs/planning.md,
-docs/slam.md): a course turns them on; a robot that does not use them pays nothing for them."""
+docs/slam.md, docs/judge.md): a course turns them on; a robot that does not use them pays nothing for them."""
 
 # Value ranges, checked when a file is read: a bad value is a ConfigError naming its key
 # ("robot.toml: hwbridge.deadman_s: Expected `float` > 0.0") and nothing starts.
@@ -133,12 +133,43 @@ class Hwbridge(Section):
     """Measured wheel speed = encoder counts over this window, s (one count is ~0.5 mm)."""
 
 
+class Car(Section):
+    """The virtual car hwbridge drives on ``cmd/car`` (``[car]``, docs/motion-models.md): a
+    bicycle-model car whose rear axle is the drive wheels' axle.
+
+    There is no other place for it: a differential base turns about a point on its wheels' axle,
+    as a car turns about a point on its rear axle's line, and a rear axle anywhere else would have
+    to slide sideways in every turn. What the config chooses is which end of the robot is the
+    car's front (``facing``)."""
+
+    wheelbase: Annotated[float, Meta(ge=0.02, le=5.0)] = 0.15
+    """From the rear axle (the drive wheels) to the front axle, m."""
+    max_steer: Annotated[float, Meta(gt=0, le=1.3)] = 0.6
+    """Largest steering angle either way, rad (a larger ``cmd/car`` is clipped, with a log line)."""
+    steer_rate: Annotated[float, Meta(gt=0, le=50)] = 1.5
+    """How fast the steering turns, rad/s (a car cannot jump from full left to full right)."""
+    facing: Literal["forward", "backward"] = "forward"
+    """Where the car's front is: "forward", the robot's front (the front axle ``wheelbase`` ahead of
+    the drive wheels); "backward", the robot's back (the car drives castor first)."""
+    state_rate_hz: Annotated[float, Meta(gt=0, le=200)] = 50.0
+    """Rate of ``car/state`` while the car moves or steers, and of the steering's steps, Hz."""
+
+
 class Camera(Section):
+    """The robot's camera and what it costs (docs/camera.md, "What the camera costs"): detection's
+    CPU is about proportional to ``width`` x ``height`` x ``detection_rate_hz``."""
+
     source: str = "sim"
     """"sim", "picamera2", "v4l2:<index or path>", or a folder/video file to replay."""
-    width: Count = 640
-    height: Count = 480
-    fps: Hz = 15.0
+    width: Annotated[int, Meta(ge=64, le=4096)] = 640
+    """Frame width, pixels: what is captured and searched for markers (the simulator renders it)."""
+    height: Annotated[int, Meta(ge=48, le=4096)] = 480
+    """Frame height, pixels."""
+    fps: Annotated[float, Meta(gt=0, le=120)] = 15.0
+    """Frames captured a second (what ``camera/frames`` streams to a watcher)."""
+    detection_rate_hz: Annotated[float, Meta(ge=0, le=120)] = 0.0
+    """Frames searched for markers a second, the camera's main cost (0 = every captured frame;
+    at most ``fps``). The PenguinPi's Raspberry Pi 3B: deploy/robots/penguin1.toml."""
     image_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 2.0
     """Rate of ``camera/image`` on the bus (Wi-Fi is shared by a class)."""
     image_width: Count = 320
@@ -160,6 +191,20 @@ class Camera(Section):
     """Camera height above the floor, m."""
     mount_yaw: float = 0.0
     """Camera heading relative to the robot's, rad."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.detection_rate_hz > self.fps:
+            raise ValueError(f"detection_rate_hz ({self.detection_rate_hz:g}) must be at most fps ({self.fps:g}): "
+                             "detection cannot search frames that were never captured")
+        if self.image_width > self.width or self.image_height > self.height:
+            raise ValueError(f"image_width x image_height ({self.image_width}x{self.image_height}) must fit in "
+                             f"width x height ({self.width}x{self.height}): the images are the frames made smaller")
+
+    @property
+    def detection_hz(self) -> float:
+        """Frames searched for markers a second: ``detection_rate_hz``, or ``fps`` when that is 0."""
+        return self.detection_rate_hz or self.fps
 
 
 class Extloc(Section):
@@ -207,7 +252,15 @@ class Overhead(Section):
     """The old localiser's HTTP API (``/pose/get``, ``/camera/get``); 0 = none."""
     http_host: str = "0.0.0.0"
     image_rate_hz: Annotated[float, Meta(ge=0, le=100)] = 2.0
-    """How often the picture for ``/camera/get`` is encoded (JPEG), Hz."""
+    """How often the pictures of ``/camera/get`` and ``/camera/frame`` are encoded, Hz."""
+    old_square_x: Annotated[float, Meta(ge=-1000, le=1000)] = -0.5
+    """Where the old localiser's 2 m square lies in the world: its corner (the old API's x, y = 0, 0),
+    world frame, m. The default puts it on the lab world's clear 2 m square, x and y in [-0.5, 1.5] m
+    (docs/extloc.md)."""
+    old_square_y: Annotated[float, Meta(ge=-1000, le=1000)] = -0.5
+    old_square_yaw: Annotated[float, Meta(ge=-math.tau, le=math.tau)] = 0.0
+    """Direction of the old square's +x axis in the world, rad CCW from the world's +x (its +y is
+    90 degrees CCW from that: the old frame is right-handed, as seen from above)."""
     sim_x: float = 0.0
     """The simulated camera's lens, world frame, m."""
     sim_y: float = 0.0
@@ -387,6 +440,51 @@ class Follower(Section):
     """Stop when no pose came for this long while following, s."""
 
 
+class Judge(Section):
+    """The lap judge of a track world: RVSS "Need 4 Speed"'s lap time, penalties and reward from the
+    simulator's truth (services/judge, docs/judge.md)."""
+
+    world: str = ""
+    """The world whose track is judged: a world name or a path ("" = ``sim.world``)."""
+    rate_hz: Annotated[float, Meta(gt=0, le=50)] = 5.0
+    """``judge/state`` per second."""
+    results: str = "{run_dir}/judge.jsonl"
+    """The results file: one JSON line per lap (`JudgeLap`), appended as each lap ends, and the lap
+    in progress when the judge stops ("" = none)."""
+    stop_zone: Annotated[float, Meta(gt=0, le=1.0)] = 0.10
+    """How far before a stop sign's line the robot's front may stop, m (the workshop's 10 cm)."""
+    stop_dwell_s: Annotated[float, Meta(gt=0, le=10.0)] = 0.5
+    """Stopped = stood still this long, s (docs/judge.md says why)."""
+    stop_tolerance: Annotated[float, Meta(gt=0, le=0.05)] = 0.005
+    """Standing still = the centre moved at most this far, m."""
+
+
+class Ros2(Section):
+    """ROS 2 topics in rmw_zenoh's form on the robot's own router (services/ros2; docs/ros2.md)."""
+
+    distro: Literal["humble", "jazzy", "kilted", "rolling"] = "jazzy"
+    """The ROS 2 distribution whose type hashes the keys carry (Humble's rmw_zenoh writes none)."""
+    domain_id: Annotated[int, Meta(ge=0, le=232)] = 0
+    """``ROS_DOMAIN_ID`` of the ROS 2 users (0-232, as ROS 2 allows)."""
+    namespace: Annotated[str, Meta(pattern=r"^(/[A-Za-z][A-Za-z0-9_]*)*$")] = ""
+    """The topics' namespace, ``/penguin1`` ("" = ``/<robot name>``)."""
+    odom_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "odom"
+    """``header.frame_id`` of ``odom``."""
+    base_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "base_link"
+    """``child_frame_id`` of ``odom`` and ``tf``."""
+    map_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "map"
+    """``header.frame_id`` of ``map``, ``pose`` and ``external_pose``: the world frame (the world map's)."""
+    camera_frame: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "camera_optical_frame"
+    """``header.frame_id`` of the camera's topics: OpenCV's axes (x right, y down, z forward), which
+    are ROS's optical frame (REP 103)."""
+    images: Literal["off", "image", "frames"] = "image"
+    """``camera/image_raw/compressed``: "image" = the JPEGs of ``camera/image`` (``camera.image_rate_hz``,
+    2 a second, made anyway); "frames" = every captured frame (``camera/frames``: the camera then
+    encodes each one, all the time); "off" = none (``camera/camera_info`` still follows ``camera/image``)."""
+    map_period_s: Seconds = 5.0
+    """How often ``map`` is published again, s (volatile QoS: a ROS 2 user who joins later gets the next)."""
+
+
 Profile = Literal["realistic", "ideal"]
 """How unkind the simulated robot is (``[sim] profile``; docs/sim.md has the table of effects)."""
 
@@ -514,6 +612,26 @@ class Webapi(Section):
     camera_get: Literal["stream", "frame"] = "stream"
     """What ``/camera/get`` answers: "stream", the old server's endless MJPEG stream; "frame", one
     JPEG per request (for clients written against a course simulator that serves one image)."""
+    wheel_signs: tuple[Literal[1, -1], Literal[1, -1]] = (1, 1)
+    """How the old API's clients see each wheel, (left, right): -1 turns that wheel round for
+    them, as on a robot whose motor and encoder leads of that wheel were swapped. A fleet whose
+    clients negate the right wheel's speed for their physical robots (ECE4078 2023's
+    ``set_velocity``: "if right wheel spins backwards") sets ``[1, -1]``: their speeds and counts
+    of that wheel are negated on the way in and out, and their code drives straight."""
+
+
+class Lab(Section):
+    """The lab's emergency stop, in the lab machine's config (``icefloe lab stop``; the lab's page,
+    ``services/labpage``; docs/lab.md)."""
+
+    folder: str = ""
+    """The lab's credentials folder (``icefloe router --lab DIR``'s): the robots to stop, and the
+    TA's login (its file whose robot is "*"). "" = none: the robots alive on the bus, or ``--robot``."""
+    timeout: Annotated[float, Meta(gt=0, le=10)] = 1.0
+    """How long each robot has to confirm a stop, s."""
+    page_host: str = "0.0.0.0"
+    page_port: Port = 8090
+    """The lab's page (``services/labpage``): every robot's stop, for the TA's login only."""
 
 
 class Zenoh(Section):
@@ -576,6 +694,7 @@ class RobotConfig(Section):
     board: Board = Board()
     geometry: Geometry = Geometry()
     hwbridge: Hwbridge = Hwbridge()
+    car: Car = Car()
     camera: Camera = Camera()
     extloc: Extloc = Extloc()
     overhead: Overhead = Overhead()
@@ -588,7 +707,10 @@ class RobotConfig(Section):
     sim: Sim = Sim()
     planner: Planner = Planner()
     follower: Follower = Follower()
+    ros2: Ros2 = Ros2()
+    judge: Judge = Judge()
     webapi: Webapi = Webapi()
+    lab: Lab = Lab()
     zenoh: Zenoh = Zenoh()
     source: str = ""
     """The file this config was read from (filled in by `load`)."""
@@ -764,6 +886,7 @@ def parse(data: dict[str, Any], source: str = "<config>", *, credentials: bool =
     if not config.name or any(c in config.name for c in "/*$#? "):
         raise ConfigError(f"{source}: name: {config.name!r} is not a usable robot name")
     check_programs(config, source)
+    check_car(config, source)
     check_lab(config.zenoh, config.zenoh.listen, source)
     run_dir = str(config.runtime_dir)
     expanded = _expand(msgspec.to_builtins(config), {"run_dir": run_dir, "name": config.name,
@@ -788,6 +911,19 @@ def check_programs(config: RobotConfig, source: str) -> None:
         if not program.command or not program.command[0]:
             raise ConfigError(f"{source}: programs.{name}.command: give the program to run, "
                               'e.g. ["{python}", "my_service.py"]')
+
+
+def check_car(config: RobotConfig, source: str) -> None:
+    """`ConfigError` for a car whose tightest turn would run its inner rear wheel backwards: a
+    car's turning centre lies beyond its rear wheels, wheelbase / tan(max_steer) >= track / 2."""
+    car, half_track = config.car, config.geometry.track / 2
+    tightest = car.wheelbase / math.tan(car.max_steer)
+    if tightest < half_track:
+        most = math.atan(car.wheelbase / half_track)
+        raise ConfigError(f"{source}: car.max_steer: {car.max_steer:g} rad turns about a point "
+                          f"{tightest:.3f} m from the rear axle's centre, inside the wheels ({half_track:g} m "
+                          f"each side): a car's inner wheel would run backwards; at most {most:.3f} rad for "
+                          f"wheelbase {car.wheelbase:g} m")
 
 
 def protocol(endpoint: str) -> str:
@@ -836,4 +972,6 @@ def robot_info(config: RobotConfig) -> m.RobotInfo:
         track=config.geometry.track,
         ticks_per_rev=config.geometry.ticks_per_rev,
         max_wheel_speed=config.hwbridge.max_wheel_speed,
+        wheelbase=config.car.wheelbase,
+        max_steer=config.car.max_steer,
     )

@@ -30,6 +30,9 @@ from .errors import ConfigError
 
 GUEST_USER = "guest"
 GUEST_PASSWORD = "guest"
+TA_ROBOT = "*"
+"""The ``robot`` of the lab's TA account in its credentials file: no robot of its own; it may stop
+every robot of the lab and use their simulators' handles (deploy/zenoh/acl/ta.json5, docs/lab.md)."""
 
 
 class Credentials(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

@@ -39,6 +39,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from packaging.tags import sys_tags
+
 from . import config as config_mod
 from . import credentials as credentials_mod
 from . import lock, paths
@@ -395,7 +397,9 @@ def check_wheelhouse(source: str, extras: str, wheelhouse: Path) -> None:
             raise ConfigError(f"--wheelhouse: {source} is a pip requirement, which carries no lock to check "
                               "the wheelhouse against: give a wheel file or a checkout")
         locked = lock.pins([f.stem for f in lock_files(folder, extras)], directory=folder)
-        problems = lock.wheelhouse_problems(wheelhouse, locked)
+        # only wheels this machine can install: the lock lists every machine's files (an x86_64 laptop's
+        # download would pass a hash check for a Pi, and pip would then fail half-way through the install)
+        problems = lock.wheelhouse_problems(wheelhouse, locked, tags=set(sys_tags()))
     if problems:
         more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
         raise ConfigError(f"--wheelhouse {wheelhouse}: does not match the lock ({lock.this_machine()}): "
@@ -491,6 +495,10 @@ def units(config: RobotConfig, config_path: Path, python: str | os.PathLike[str]
 def services_of(config: RobotConfig) -> list[str]:
     """The template-unit services this robot runs (hwbridge has its own unit; no simulator on a robot)."""
     return [s for s in config.services if s not in ("hwbridge", "sim")]
+
+
+SLICE = "icefloe.slice"
+"""Every unit's slice: the robot's services apart from the students' programs (docs/deploy.md)."""
 
 
 def unit_names(config: RobotConfig) -> list[str]:
@@ -697,6 +705,9 @@ def remove_plan(manifest: Manifest, purge: bool = False) -> list[Action]:
         plan.append(Action(f"stop and disable: {' '.join(units_)}",
                            ("systemctl", "disable", *(("--now",) if running else ()), *units_),
                            tolerant="systemctl could not disable them (gone already?)"))
+        if running:  # the units' slice (deploy/systemd/icefloe.slice) stays up, empty, until stopped
+            plan.append(Action(f"stop {SLICE}", ("systemctl", "stop", SLICE),
+                               tolerant=f"systemctl could not stop {SLICE} (gone already?)"))
     files = [Path(p) for (p,) in manifest.of("file")]
     plan += [Action(f"remove {p}", ("rm", "-f", str(p))) for p in files]
     if units_ and systemd_running():

@@ -23,8 +23,8 @@ scheduling, CPUs and environment):
 3. the server moves the service into the requester's cgroups (its unit's), then lets it go on;
 4. the service makes itself like the requester: the same user, groups, resource limits,
    scheduling policy and priority, CPUs, nice value, OOM score, working folder and umask
-   (read from ``/proc/<requester>``, so that the unit file stays the one place they are set),
-   then runs the module;
+   (read from ``/proc/<requester>`` by the server before it answers, so that the unit file stays
+   the one place they are set), then runs the module;
 5. ``start`` tells systemd the service's pid (``MAINPID=``, with ``READY=1``) and exits.
 
 Under ``icefloe up`` the launcher is the requester and adopts the services itself (it is a
@@ -158,7 +158,11 @@ class Server:
                 raise Refused(f"a request brings standard input, output and error ({len(fds)} given)")
             if (threads := len(os.listdir("/proc/self/task"))) != 1:
                 raise Refused(f"the server has {threads} threads: a fork would copy their locks held")
-            service = self.fork(request, pid, fds)
+            try:  # now, while the requester waits for the answer: it may end as soon as it has one
+                like = Likeness.of(pid)
+            except (OSError, KeyError, ValueError) as exc:
+                raise Refused(f"cannot read what pid {pid} is like: {exc}") from None
+            service = self.fork(request, pid, like, fds)
             conn.sendall(json.dumps({"pid": service}).encode())
             self.started += 1
             say(f"started {request.module} as pid {service} for pid {pid}")
@@ -172,7 +176,7 @@ class Server:
             for fd in fds:
                 os.close(fd)
 
-    def fork(self, request: Request, requester: int, fds: list[int]) -> int:
+    def fork(self, request: Request, requester: int, like: Likeness, fds: list[int]) -> int:
         """Fork the service (see the module's docstring); its pid. In the service, raise `Become`."""
         go_r, go_w = os.pipe()
         pid_r, pid_w = os.pipe()
@@ -194,7 +198,7 @@ class Server:
                 os.close(go_r)
             except BaseException:
                 os._exit(1)
-            raise Become(request, requester, streams, go)
+            raise Become(request, like, streams, go)
         os.close(pid_w)
         os.close(go_r)
         service = int(os.read(pid_r, 32) or b"0")
@@ -217,8 +221,43 @@ class Become(BaseException):  # not an error: a forked service unwinding the ser
     """Raised in a forked service: the server's frames unwind (closing its socket), and `main`
     then turns this process into the service (`become`)."""
 
-    def __init__(self, request: Request, requester: int, fds: list[int], go: bool) -> None:
-        self.request, self.requester, self.fds, self.go = request, requester, fds, go
+    def __init__(self, request: Request, like: Likeness, fds: list[int], go: bool) -> None:
+        self.request, self.like, self.fds, self.go = request, like, fds, go
+
+
+@dataclass(frozen=True)
+class Likeness:
+    """What a service copies from its requester, read by the server before it answers (after the
+    answer a unit's requester ends, and its ``/proc`` entry with it)."""
+
+    pid: int
+    limits: dict[int, tuple[int, int]]
+    cpus: set[int]
+    nice: int
+    policy: int
+    priority: int
+    oom_score_adj: str
+    umask: int
+    cwd: str
+    uid: int
+    gid: int
+    groups: list[int]
+
+    @classmethod
+    def of(cls, pid: int) -> Likeness:
+        limits = {}
+        for n in LIMITS:
+            with contextlib.suppress(OSError, ValueError):
+                limits[n] = resource.prlimit(pid, n)
+        status = dict(line.split(":\t", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                      if ":\t" in line)
+        return cls(pid=pid, limits=limits, cpus=os.sched_getaffinity(pid),
+                   nice=os.getpriority(os.PRIO_PROCESS, pid), policy=os.sched_getscheduler(pid),
+                   priority=os.sched_getparam(pid).sched_priority,
+                   oom_score_adj=Path(f"/proc/{pid}/oom_score_adj").read_text(),
+                   umask=int(status.get("Umask", "0022"), 8), cwd=os.readlink(f"/proc/{pid}/cwd"),
+                   uid=int(status["Uid"].split()[0]), gid=int(status["Gid"].split()[0]),
+                   groups=[int(g) for g in status.get("Groups", "").split()])
 
 
 # ---------------------------------------------------------------------------- cgroups
@@ -256,10 +295,17 @@ def cgroup_procs(cgroup: str, mounts: list[tuple[frozenset[str], str]]) -> list[
 def join_cgroups(pid: int, like: int) -> None:
     """Move ``pid`` into the cgroups of ``like`` (nothing to do when they are already the same)."""
     theirs, ours = Path(f"/proc/{like}/cgroup").read_text(), Path(f"/proc/{pid}/cgroup").read_text()
-    if theirs == ours:
-        return
-    for procs in cgroup_procs(theirs, cgroup_mounts(Path("/proc/self/mountinfo").read_text())):
+    for procs in cgroups_to_join(theirs, ours, cgroup_mounts(Path("/proc/self/mountinfo").read_text())):
         procs.write_text(str(pid))
+
+
+def cgroups_to_join(theirs: str, ours: str, mounts: list[tuple[frozenset[str], str]]) -> list[Path]:
+    """The ``cgroup.procs`` files to write to go from cgroups ``ours`` to ``theirs`` (texts of
+    ``/proc/<pid>/cgroup``): only the hierarchies where the two differ. The others may be mounted
+    read-only (systemd-nspawn on a cgroup v1 host: the controllers are the host's, every process is in
+    "/" of them, and only the box's own hierarchies are its systemd's)."""
+    differ = "\n".join(line for line in theirs.splitlines() if line not in set(ours.splitlines()))
+    return cgroup_procs(differ, mounts)
 
 
 # ---------------------------------------------------------------------------- the service
@@ -270,34 +316,29 @@ def become(b: Become) -> None:
     module as ``python -m`` would; its exit is this process's exit."""
     if not b.go:
         os._exit(1)
-    r = b.request
-    like = b.requester
+    r, like = b.request, b.like
     try:
-        for n in LIMITS:
+        for n, limit in like.limits.items():
             with contextlib.suppress(OSError, ValueError):
-                resource.setrlimit(n, resource.prlimit(like, n))
+                resource.setrlimit(n, limit)
         with contextlib.suppress(OSError):
-            os.sched_setaffinity(0, os.sched_getaffinity(like))
+            os.sched_setaffinity(0, like.cpus)
         with contextlib.suppress(OSError):
-            os.setpriority(os.PRIO_PROCESS, 0, os.getpriority(os.PRIO_PROCESS, like))
+            os.setpriority(os.PRIO_PROCESS, 0, like.nice)
         with contextlib.suppress(OSError):
-            os.sched_setscheduler(0, os.sched_getscheduler(like), os.sched_getparam(like))
+            os.sched_setscheduler(0, like.policy, os.sched_param(like.priority))
         with contextlib.suppress(OSError):
-            Path("/proc/self/oom_score_adj").write_text(Path(f"/proc/{like}/oom_score_adj").read_text())
-        status = dict(line.split(":\t", 1) for line in Path(f"/proc/{like}/status").read_text().splitlines()
-                      if ":\t" in line)
-        os.umask(int(status.get("Umask", "0022"), 8))
-        cwd = os.readlink(f"/proc/{like}/cwd")
-        uid, gid = int(status["Uid"].split()[0]), int(status["Gid"].split()[0])
-        if os.getuid() == 0 and uid != 0:
-            os.setgroups([int(g) for g in status.get("Groups", "").split()])
-            os.setgid(gid)
-            os.setuid(uid)  # the last step: from here on, no privilege is left
-        elif os.getuid() != uid:
-            raise PermissionError(f"the server runs as {os.getuid()}, the requester as {uid}")
-        os.chdir(cwd)
-    except (OSError, KeyError, ValueError) as exc:
-        say(f"pid {os.getpid()}: cannot become like pid {like}: {exc}")
+            Path("/proc/self/oom_score_adj").write_text(like.oom_score_adj)
+        os.umask(like.umask)
+        if os.getuid() == 0 and like.uid != 0:
+            os.setgroups(like.groups)
+            os.setgid(like.gid)
+            os.setuid(like.uid)  # the last step: from here on, no privilege is left
+        elif os.getuid() != like.uid:
+            raise PermissionError(f"the server runs as {os.getuid()}, the requester as {like.uid}")
+        os.chdir(like.cwd)
+    except OSError as exc:
+        say(f"pid {os.getpid()}: cannot become like pid {like.pid}: {exc}")
         os._exit(1)
     os.setsid()
     for target, fd in enumerate(b.fds):
@@ -370,6 +411,7 @@ def start(path: str, module: str, argv: list[str]) -> None:
         except (OSError, Refused, ValueError) as exc:
             say(f"{module}: the fork server at {path} did not start it ({exc}): starting it on its own "
                 "(it then holds its own copy of every module)")
+            notify_systemd("READY=1")  # Type=notify: this pid, after the exec below, is the service
         else:
             notify_systemd(f"MAINPID={pid}\nREADY=1", barrier=True)
             return

@@ -18,12 +18,13 @@ import importlib.metadata
 import platform
 import re
 import sys
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from packaging.markers import Marker
 from packaging.requirements import Requirement
+from packaging.tags import Tag
 from packaging.utils import canonicalize_name, parse_wheel_filename
 
 from . import paths
@@ -181,9 +182,11 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def wheelhouse_problems(directory: Path, locked: Mapping[str, Pin]) -> list[str]:
+def wheelhouse_problems(directory: Path, locked: Mapping[str, Pin], tags: Collection[Tag] | None = None) -> list[str]:
     """Why ``directory`` cannot install ``locked`` with nothing downloaded: each pin with no file
-    of the lock's version, or whose file's hash is not one the lock lists. Empty: it can."""
+    of the lock's version, or whose file's hash is not one the lock lists, or (given the ``tags`` of the
+    machine that installs: `packaging.tags.sys_tags`) whose files the lock lists are all wheels for
+    another machine or Python (the lock lists every machine's). Empty: it can."""
     files: dict[str, list[Path]] = {}
     for f in sorted(directory.iterdir()) if directory.is_dir() else []:
         if f.suffix == ".whl":
@@ -197,10 +200,20 @@ def wheelhouse_problems(directory: Path, locked: Mapping[str, Pin]) -> list[str]
         ours = files.get(name, [])
         if not ours:
             problems.append(f"{name} {pin.version}: no file in {directory}")
-        elif not any(sha256(f) in pin.hashes for f in ours):
+            continue
+        listed = [f for f in ours if sha256(f) in pin.hashes]
+        if not listed:
             problems.append(f"{name} {pin.version}: {', '.join(f.name for f in ours)} is not a file the lock "
                             f"lists (another version, or another build)")
+        elif tags is not None and not any(installable(f, tags) for f in listed):
+            problems.append(f"{name} {pin.version}: {', '.join(f.name for f in listed)} is for another machine "
+                            "or Python, not this one")
     return problems
+
+
+def installable(path: Path, tags: Collection[Tag]) -> bool:
+    """A wheel made for one of ``tags`` (a machine's), or a source archive (pip builds it there)."""
+    return path.suffix != ".whl" or not parse_wheel_filename(path.name)[3].isdisjoint(tags)
 
 
 def this_machine() -> str:

@@ -23,15 +23,15 @@ import asyncio
 import contextlib
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
 
-from . import paths
+from . import paths, ros2
 from .config import RobotConfig, check_lab, private_dir, protocol
-from .credentials import GUEST_PASSWORD, GUEST_USER
+from .credentials import GUEST_PASSWORD, GUEST_USER, TA_ROBOT
 from .errors import ConfigError
 from .runtime import run, zenoh_config
 from .schemas import keys
@@ -62,26 +62,37 @@ def _acl_part(name: str, **fill: str | list[str]) -> dict:
     return json.loads(zenoh.Config.from_json5(text).get_json("access_control"))  # Zenoh reads its JSON5
 
 
-TA_ROBOT = "*"
-"""The ``robot`` of the lab's TA account in its credentials file: no robot of its own, the
-simulator's handles of every one (``ta.json5``)."""
+def _ros2_owner_part(robot: str, user: str, domain: int, namespace: str) -> dict:
+    """`ros2-owner.json5` for a robot whose ROS 2 topics are in ``namespace`` (``/penguin1``)."""
+    return _acl_part("ros2-owner", robot=robot, user=user, ros2_domain=str(domain),
+                     ros2_namespace=namespace.strip("/"), ros2_token_namespace=ros2.mangle(namespace.rstrip("/")))
 
 
 def access_control(owners: Sequence[tuple[str, str]], lab_protocols: Sequence[str] = (),
-                   localizers: Sequence[str] = ()) -> dict:
+                   localizers: Sequence[str] = (), ros2_domain: int = 0,
+                   ros2_namespaces: Mapping[str, str] | None = None) -> dict:
     """Zenoh's ``access_control`` for (robot, user) pairs: `everyone.json5` once, `owner.json5` per
     robot, `ta.json5` for the users whose robot is `TA_ROBOT`, `localizer.json5` per user of
     ``localizers`` (the lab's external localizer), and `lab-link.json5` when the router joins a
-    lab over ``lab_protocols``."""
+    lab over ``lab_protocols``.
+
+    ROS 2 (docs/ros2.md): everyone may watch the ROS 2 domain ``ros2_domain``; each robot's owner gets
+    `ros2-owner.json5` for the robot's namespace, ``ros2_namespaces[robot]`` if given, else
+    ``/<robot>`` (none for a robot whose name is not a ROS 2 name: its owner has no ROS 2 keys)."""
     read_only = [keys.key("*", topic) for topic in keys.READ_ONLY_QUERIES]
-    parts = [_acl_part("everyone", read_only_queries=read_only)]
+    domain = str(ros2_domain)
+    parts = [_acl_part("everyone", read_only_queries=read_only, ros2_domain=domain)]
     parts += [_acl_part("owner", robot=robot, user=user) for robot, user in owners if robot != TA_ROBOT]
+    for robot, user in owners:
+        namespace = ros2.robot_namespace(robot, (ros2_namespaces or {}).get(robot, ""))
+        if robot != TA_ROBOT and namespace is not None:
+            parts.append(_ros2_owner_part(robot, user, ros2_domain, namespace))
     tas = sorted({user for robot, user in owners if robot == TA_ROBOT})
     if tas:
         parts.append(_acl_part("ta", users=tas))
     parts += [_acl_part("localizer", user=user) for user in localizers]
     if lab_protocols:
-        parts.append(_acl_part("lab-link", protocols=sorted(set(lab_protocols))))
+        parts.append(_acl_part("lab-link", protocols=sorted(set(lab_protocols)), ros2_domain=domain))
     return {"enabled": True, "default_permission": "deny",
             **{field: [item for part in parts for item in part[field]]
                for field in ("rules", "subjects", "policies")}}
@@ -154,8 +165,11 @@ def router_config(config: RobotConfig, owners: Sequence[Owner], users_file: Path
             raise ValueError("access control needs the users file (write_users)")
         zc.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(users_file)))
         lab = [protocol(e) for e in config.zenoh.lab]
-        zc.insert_json5("access_control", json.dumps(access_control([(o.robot, o.user) for o in owners], lab,
-                                                                    localizers)))
+        # ROS 2's keys of this config's domain; the robot's own namespace from its config (a lab
+        # router's robots: `/<robot>`, docs/ros2.md).
+        acl = access_control([(o.robot, o.user) for o in owners], lab, localizers, config.ros2.domain_id,
+                             {config.name: config.ros2.namespace})
+        zc.insert_json5("access_control", json.dumps(acl))
     return zc
 
 

@@ -16,6 +16,10 @@ answer those calls with a robot's messages instead of the toolbox's simulation:
 * `landmark_map`: a world's markers as the toolbox's `LandmarkMap` (column ``id`` = marker ``id``).
 * `occupancy_grid`: icefloe's occupancy grid (icefloe.grid) as the toolbox's `BinaryOccupancyGrid`,
   the map its planners (`DistanceTransformPlanner`, `DstarPlanner`, ...) take.
+* `Car` and `drive_car`: the toolbox's `Bicycle` with the robot's virtual car (``[car]``:
+  wheelbase, largest angle, steering rate), its control (a constant, a function, or one of the
+  toolbox's drivers: `PurePursuit`, `RandomPath`) driving the robot on ``cmd/car`` step by step,
+  in real time, while the model predicts where the robot goes (docs/motion-models.md).
 
 The toolbox's Jacobians, noise handling and bookkeeping are its own: only ``step`` and ``reading``
 are replaced. Example: examples/rtb_slam.py; docs/slam.md.
@@ -23,20 +27,27 @@ are replaced. Example: examples/rtb_slam.py; docs/slam.md.
 
 from __future__ import annotations
 
+import asyncio
 import heapq
 import itertools
 import math
+import threading
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+import zenoh
 
 try:
-    from roboticstoolbox import LandmarkMap, RangeBearingSensor, Unicycle
+    from roboticstoolbox import Bicycle, LandmarkMap, RangeBearingSensor, Unicycle
 except ImportError as exc:  # an optional extra: say how to get it, once, when used
     raise ImportError(f"icefloe.rtb needs the Robotics Toolbox: pip install \"icefloe[rtb]\" ({exc})") from None
 
 from .angles import wrap_angle
+from .config import RobotConfig
+from .errors import MotionStopped
+from .schemas import keys
 from .schemas import messages as m
 from .worldmap import WorldMap
 
@@ -190,3 +201,65 @@ def occupancy_grid(grid):
 
     return BinaryOccupancyGrid(np.asarray(grid.cells, dtype=bool), cellsize=grid.resolution,
                                origin=(grid.origin_x, grid.origin_y))
+
+
+class Car(Bicycle):
+    """The toolbox's `Bicycle` with the robot's virtual car: L = ``car.wheelbase``, ``steer_max`` =
+    ``car.max_steer``, ``speed_max`` = ``hwbridge.max_wheel_speed``, and the car's steering rate
+    (``car.steer_rate``), which the toolbox's Bicycle lacks: the steering turns towards the angle asked
+    for by at most ``steer_rate * dt`` a step, from where it is, as hwbridge turns it (so the model
+    predicts what the robot does, not what it was asked). ``u`` is the last step's (v m/s, steer rad),
+    what `drive_car` sends. Its control and ``x0``, ``dt`` (s a step) are the toolbox's keywords."""
+
+    def __init__(self, config: RobotConfig, **kwargs) -> None:
+        kwargs.setdefault("speed_max", config.hwbridge.max_wheel_speed)
+        super().__init__(L=config.car.wheelbase, steer_max=config.car.max_steer, animation=None, **kwargs)
+        self.steer_rate = config.car.steer_rate
+        self.u = np.zeros(2)
+        self._steer = 0.0
+
+    def init(self, *args, **kwargs) -> None:
+        super().init(*args, **kwargs)
+        self._steer = 0.0
+        self.u = np.zeros(2)
+
+    def u_limited(self, u) -> np.ndarray:
+        # The toolbox calls this twice a step (eval_control, then deriv with the limited u): the
+        # second call finds the steering where the first left it, and changes nothing.
+        ulim = super().u_limited(np.asarray(u, dtype=float))
+        most = self.steer_rate * self.dt
+        ulim[1] = self._steer + float(np.clip(ulim[1] - self._steer, -most, most))
+        self._steer = float(ulim[1])
+        self.u = ulim
+        return ulim
+
+
+async def drive_car(car: Car, robot, duration: float) -> np.ndarray:
+    """Drive ``robot`` (an `icefloe.client.AsyncRobot`) with ``car``'s control for ``duration`` s: each
+    ``car.dt`` s (by the wall clock, as hwbridge's steering and deadman run) one toolbox step, its
+    (v, steer) sent as ``cmd/car`` and integrated by the model; then the robot is stopped (confirmed),
+    also when this is cancelled or fails (a control that gives NaN: `ValueError` naming ``v`` or
+    ``steer``). A ``cmd/stop`` from another program (a teacher's stop, ``icefloe pub cmd/stop``) ends
+    the drive: `MotionStopped`, and nothing more is sent. Returns the model's prediction,
+    ``car.x_hist`` (one row (x, y, theta) per step, from ``car``'s ``x0``).
+
+    The drivers steer by the model's pose, as in the toolbox: the robot follows the model's commands
+    open loop, and where it ends differs from the prediction by what the model leaves out (wheel
+    slip, the wheels' acceleration, a loaded machine)."""
+    stopped = threading.Event()
+    listener = robot.node.on_samples(robot.node.key(keys.STOP), lambda _sample: stopped.set(),
+                                     allowed_origin=zenoh.Locality.REMOTE)
+    car.init(animate=False)
+    start = time.monotonic()
+    try:
+        async with robot.car(0.0, 0.0):
+            for i in range(round(duration / car.dt)):
+                car.step(animate=False)
+                if stopped.is_set():
+                    raise MotionStopped(f"rtb.drive_car: ended by a cmd/stop from another program after {i} of "
+                                        f"{round(duration / car.dt)} steps")
+                await robot.drive_car(float(car.u[0]), float(car.u[1]))
+                await asyncio.sleep(max(0.0, start + (i + 1) * car.dt - time.monotonic()))
+    finally:
+        listener.undeclare()
+    return car.x_hist

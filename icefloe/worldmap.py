@@ -81,6 +81,11 @@ frame), and the localizer moves each sighting from the face to the cube's centre
 face's normal, merges the faces of one frame into one sighting, and uses it as a landmark at
 (x, y) (`WorldMap.landmarks`; docs/sim.md).
 
+A world may lay a road on its floor, a track of tiles with signs (`icefloe.track`: a layout
+file, looked up by name in a ``tracks/`` folder as worlds are, or a path relative to the world file)::
+
+    track = "loop"            # deploy/tracks/loop.toml
+
 World frame: x and y on the floor, z up, angles counter-clockwise from +x.
 """
 
@@ -96,6 +101,7 @@ import msgspec
 from . import paths
 from .config import field_error, read_toml
 from .errors import ConfigError
+from .track import Track, load_track
 
 
 def check_finite(item: msgspec.Struct, names: Iterable[str]) -> None:
@@ -303,6 +309,8 @@ class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     blocks: tuple[Block, ...] = msgspec.field(default=(), name="block")
     floor_markers: tuple[FloorMarker, ...] = msgspec.field(default=(), name="floor_marker")
     obstacles: tuple[Obstacle, ...] = msgspec.field(default=(), name="obstacle")
+    track: Track | None = None
+    """The road on the floor, from the layout file the world file's ``track`` key names."""
 
     def clearance(self, x: float, y: float) -> float:
         """Distance from (x, y) to the nearest obstacle, m (0 inside one; inf without obstacles)."""
@@ -331,7 +339,10 @@ class WorldMap(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 def parse_world(data: dict[str, Any], source: str) -> WorldMap:
-    """A WorldMap from a TOML-shaped dict; `ConfigError` names ``source``, the marker and the key."""
+    """A WorldMap from a TOML-shaped dict; `ConfigError` names ``source``, the marker and the key
+    (a bad layout file: its own name and field)."""
+    data = dict(data)
+    track_name = data.pop("track", None)
     try:
         world = msgspec.convert(data, WorldMap)
     except msgspec.ValidationError as exc:
@@ -350,6 +361,10 @@ def parse_world(data: dict[str, Any], source: str) -> WorldMap:
             raise ConfigError(f"{source}: floor_marker[{i}].id: id {f.id} is already used by "
                               f"floor_marker[{floor[f.id]}]")
         floor[f.id] = i
+    if track_name is not None:
+        if not isinstance(track_name, str) or not track_name:
+            raise ConfigError(f"{source}: track: must be the name of a track layout or a path to one")
+        world = msgspec.structs.replace(world, track=load_track(track_name, Path(source).parent))
     return world if world.name else msgspec.structs.replace(world, name=Path(source).stem)
 
 

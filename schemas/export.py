@@ -19,6 +19,7 @@ import inspect
 import itertools
 import json
 from pathlib import Path
+from typing import Any
 
 import msgspec
 
@@ -54,6 +55,24 @@ def field_docs() -> dict[tuple[str, str], str]:
     return docs
 
 
+_BOUNDS = ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum")
+
+
+def _whole_bounds(node: Any) -> Any:
+    """``node`` with each whole-number bound written as an integer (``10.0`` -> ``10``).
+
+    Why: typing caches ``Annotated[float, Meta(le=10)]``, and ``Meta(le=10.0)`` is equal to it, so
+    whichever module spelled it first decides what msgspec sees: a config field could change a
+    message's schema. Both mean the same bound; the files must not depend on import order.
+    """
+    if isinstance(node, dict):
+        return {k: (int(v) if k in _BOUNDS and isinstance(v, float) and v.is_integer() else _whole_bounds(v))
+                for k, v in node.items()}
+    if isinstance(node, list):
+        return [_whole_bounds(v) for v in node]
+    return node
+
+
 def schemas() -> dict[str, str]:
     """File name -> JSON text, for every message."""
     docs = field_docs()
@@ -64,7 +83,7 @@ def schemas() -> dict[str, str]:
             carried.setdefault(topic.reply.__name__, []).append(f"icefloe/<robot>/{topic.name} (reply)")
     out = {}
     for t in message_types():
-        schema = msgspec.json.schema(t)
+        schema = _whole_bounds(msgspec.json.schema(t))
         for name, definition in schema.get("$defs", {}).items():
             bases = [c.__name__ for c in getattr(messages, name).__mro__]  # fields a base declares
             for field, prop in definition.get("properties", {}).items():

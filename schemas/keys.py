@@ -47,6 +47,8 @@ TWIST = Topic("cmd/twist", m.Twist, "in")
 WHEELS_CMD = Topic("cmd/wheels", m.WheelSpeeds, "in")
 STOP = Topic("cmd/stop", m.Stop, "in", urgent=True)
 MOTION = Topic("cmd/motion", m.Motion, "query", reply=m.MotionDone)
+CAR = Topic("cmd/car", m.CarDrive, "in")
+"""Drive as a car: speed and steering angle (the virtual car of ``[car]``, docs/motion-models.md)."""
 LEDS = Topic("io/leds", m.Led, "in")
 LEDARRAY = Topic("io/ledarray", m.LedArray, "in")
 OLED_TEXT = Topic("oled/text", m.OledText, "in")
@@ -58,13 +60,22 @@ BOARD_SCREEN = Topic("io/screen", m.OledScreen, "in")
 HALT = Topic("cmd/halt", m.Halt, "query", reply=m.Wheels)
 """Stop the wheels and answer once hwbridge has confirmed it: the board at zero duty and, with
 ``rest`` (the default), the wheels at rest (the power service asks before power-off)."""
+LAB_STOP = Topic("lab/stop", m.LabStop, "query", reply=m.LabStopDone)
+"""The lab's emergency stop: stop, hold stopped, or release a hold (`LabStop`). Only the lab's TA
+account may ask it; a robot's owner may not (deploy/zenoh/acl/owner.json5, docs/lab.md)."""
+RELEASE = Topic("cmd/release", m.Release, "query", reply=m.Hold)
+"""The owner's end of a TA's hold, where the TA allowed it (`LabStop.owner_may_release`)."""
 
 WHEELS = Topic("hw/wheels", m.Wheels, "out")
 LOOP = Topic("hw/loop", m.LoopStats, "out")
 HW_BATTERY = Topic("hw/battery", m.BatteryReading, "out")
+HOLD = Topic("hw/hold", m.Hold, "out")
+"""Whether the lab's TA holds the robot stopped (hwbridge, at each change and once a second)."""
 BUTTONS = Topic("io/buttons", m.Buttons, "out")
 DIP = Topic("io/dip", m.Dip, "out")
 ODOM_POSE = Topic("odom/pose", m.Pose, "out")
+CAR_STATE = Topic("car/state", m.CarState, "out")
+"""The virtual car's steering and bicycle-model pose, from hwbridge (docs/motion-models.md)."""
 LOC_POSE = Topic("loc/pose", m.PoseEstimate, "out")
 IMAGE = Topic("camera/image", m.Image, "out")
 LANDMARKS = Topic("camera/landmarks", m.Landmarks, "out")
@@ -107,17 +118,21 @@ PLAN = Topic("nav/plan", m.PlanRequest, "query", reply=m.Plan)
 NAV_PATH = Topic("nav/path", m.NavPath, "in")
 """A path for the follower to drive (services/follower, or your own)."""
 NAV_STATUS = Topic("nav/status", m.FollowStatus, "out")
+JUDGE_STATE = Topic("judge/state", m.JudgeState, "out")
+"""The lap judge's lap in progress: time, penalties, latest events (services/judge, docs/judge.md)."""
+JUDGE_LAP = Topic("judge/lap", m.JudgeLap, "out")
+"""One lap's result at its end (services/judge)."""
 
 TABLE: dict[str, Topic] = {
     t.name: t
     for t in (
-        TWIST, WHEELS_CMD, STOP, MOTION, HALT, LEDS, LEDARRAY, OLED_TEXT, OLED_SCREEN, BOARD_TEXT,
-        BOARD_SCREEN,
-        WHEELS, LOOP, HW_BATTERY, BUTTONS, DIP, ODOM_POSE, LOC_POSE, IMAGE, LANDMARKS,
+        TWIST, WHEELS_CMD, CAR, STOP, MOTION, HALT, LAB_STOP, RELEASE, LEDS, LEDARRAY, OLED_TEXT, OLED_SCREEN,
+        BOARD_TEXT, BOARD_SCREEN,
+        WHEELS, LOOP, HW_BATTERY, HOLD, BUTTONS, DIP, ODOM_POSE, CAR_STATE, LOC_POSE, IMAGE, LANDMARKS,
         BATTERY, SHUTDOWN, OLED_FRAME, LOG, CLOCK, EXTLOC_POSE, TRUTH, SIM_GPIO,
         ODOM_RESET, SNAPSHOT, INFO, SHUTDOWN_REQUEST, SIM_CONTROL, FRAMES, FRAME, CAMERA_INFO,
         MAP_GRID, PLAN, NAV_PATH, NAV_STATUS,
-        MAP_LANDMARKS, SLAM_POSE, SLAM_MAP,
+        MAP_LANDMARKS, SLAM_POSE, SLAM_MAP, JUDGE_STATE, JUDGE_LAP,
     )
 }  # fmt: skip
 

@@ -75,10 +75,30 @@ class WheelSpeeds(Command):
     right: float
 
 
+class CarDrive(Command):
+    """``cmd/car``: drive the robot as a car (the virtual Ackermann-steered car of the robot
+    config's ``[car]``, docs/motion-models.md): a forward speed and a steering angle.
+
+    The steering angle, not the curvature: it is what a car's driver sets and what the bicycle
+    model of the textbooks (and the Robotics Toolbox's ``Bicycle``) takes, and the car's limits
+    are on it: its largest angle (``car.max_steer``) and how fast it turns (``car.steer_rate``).
+    The path's curvature is tan(steer) / ``car.wheelbase``. hwbridge turns the steering towards
+    ``steer`` at the steering rate, clips it to the largest angle and slows the car (its turn
+    kept) when the outer wheel would pass ``hwbridge.max_wheel_speed``, each with a log line;
+    ``car/state`` says what it applies.
+    """
+
+    v: float
+    """Forward speed of the car's rear axle, m/s (positive: the car's forward)."""
+    steer: float
+    """Steering angle of the front wheel (the bicycle model's one wheel), rad, positive to the
+    left (counter-clockwise); clipped to +-``car.max_steer``."""
+
+
 class Stop(Command):
     """``cmd/stop``: stop now. An empty map (or an empty payload) will do.
 
-    The stop latches: the wheels stay stopped until a twist, wheels or motion
+    The stop latches: the wheels stay stopped until a twist, wheels, car or motion
     command issued after it.
     """
 
@@ -89,6 +109,47 @@ class Halt(Stop):
     rest: bool = True
     """True: answer once both wheels are also at rest; False: as soon as the board runs
     zero duty with its controller cleared."""
+
+
+class LabStop(Command):
+    """``lab/stop`` query: the lab's emergency stop, the TA's alone (docs/lab.md): stop the wheels
+    now, as ``cmd/stop`` does, and answer (`LabStopDone`) once the board has confirmed it, or
+    within ``timeout`` that it has not.
+
+    ``action``:
+
+    * ``"stop"``: only that; the next motion command drives again.
+    * ``"hold"``: stop, and refuse every motion command (``cmd/twist``, ``cmd/wheels``,
+      ``cmd/motion``) until the hold is released: a program that keeps driving cannot drive.
+    * ``"release"``: end a hold. The robot stays stopped; a motion command issued after the
+      release drives again (none issued before it does).
+    """
+
+    action: Literal["stop", "hold", "release"] = "stop"
+    owner_may_release: bool = False
+    """``"hold"``: the robot's owner may release the hold too (``cmd/release``); else only the TA."""
+    reason: Annotated[str, msgspec.Meta(max_length=60)] = ""
+    """What the TA says, shown on the robot's screen, its web page and its log ("" = nothing)."""
+    timeout: Annotated[float, msgspec.Meta(gt=0, le=10)] = 1.0
+    """Answer by then, s: confirmed, or not confirmed and why."""
+
+
+class LabStopDone(Message):
+    """Answer to ``lab/stop``: what the robot did."""
+
+    stamp: int
+    confirmed: bool
+    """The board confirmed the stop this request latched (zero duty, controller cleared) within
+    the request's ``timeout``."""
+    held: bool
+    """The robot is held stopped now (`Hold`)."""
+    detail: str = ""
+    """Why it is not confirmed; else "" or a note ("was not held": a release that changed nothing)."""
+
+
+class Release(Command):
+    """``cmd/release`` query: the robot's owner ends a hold of the lab's TA, if the TA allowed it
+    (`LabStop.owner_may_release`); answered with `Hold`, or an error saying only the TA may."""
 
 
 class Motion(Command):
@@ -240,6 +301,21 @@ class LoopStats(Message):
     """The cycle's memory is locked in RAM (``mlockall`` granted), so it is never paged out."""
 
 
+class Hold(Message):
+    """``hw/hold``: whether the lab's TA holds the robot stopped (``lab/stop``), published by
+    hwbridge at each change and once a second. While ``held``, hwbridge refuses every motion
+    command; the robot's screen and web page say so."""
+
+    stamp: int
+    held: bool
+    since: int = 0
+    """When the hold began, ns since the Unix epoch (0 = not held)."""
+    reason: str = ""
+    """What the TA said (`LabStop.reason`)."""
+    owner_may_release: bool = False
+    """The robot's owner may release it (``cmd/release``); else only the TA (``lab/stop``)."""
+
+
 class BatteryReading(Message):
     """``hw/battery``: raw battery reading from the board (the power service filters it)."""
 
@@ -294,6 +370,31 @@ class Pose(Message):
     """Turn rate, rad/s."""
 
 
+class CarState(Message):
+    """``car/state``: the virtual car as hwbridge drives it (docs/motion-models.md): its steering
+    after the rate limit, and the bicycle model's pose of its rear axle, integrated from what was
+    applied (starting at 0, 0, 0 where hwbridge started; no wheel slip, no wheel lag), to compare
+    with ``odom/pose`` and the simulator's ``sim/truth``. Published at ``car.state_rate_hz``
+    while the car moves or steers, once a second otherwise."""
+
+    stamp: int
+    v: float
+    """Forward speed applied, m/s: the command's, slowed for the wheels' limit; 0 after a stop,
+    the deadman, or another kind of command."""
+    steer: float
+    """Steering angle now, rad (left positive), after the rate limit."""
+    steer_target: float
+    """The angle it turns towards: the last ``cmd/car``'s, clipped to +-``car.max_steer``, rad."""
+    x: float
+    """Bicycle model: the rear axle's centre, m."""
+    y: float
+    """m."""
+    theta: float
+    """The car's heading, rad, counter-clockwise, in (-pi, pi]."""
+    driving: bool = False
+    """A ``cmd/car`` drives the wheels now (False: stopped, the deadman, or another command)."""
+
+
 class PoseEstimate(Message):
     """``loc/pose``: the localizer's pose in the map frame, with its uncertainty."""
 
@@ -336,6 +437,10 @@ class Truth(Message):
     """True while the robot pushes against an obstacle of the world (it does not move into it)."""
     collisions: int = 0
     """Times the robot has run into an obstacle since the simulator started."""
+    sim_time: float = 0.0
+    """Simulated seconds since the simulator started, when this pose was true (its 1 kHz clock:
+    exact where a busy machine makes it drop steps and the wall clock is not; 0 = not given). The
+    lap judge times laps by it."""
     v: float = 0.0
     """True speed, m/s, forward (over the simulator's last 1 ms step)."""
     w: float = 0.0
@@ -743,6 +848,81 @@ class OledFrame(Message):
     """1 bit per pixel, row-major, most significant bit first; width * height / 8 bytes."""
 
 
+# --------------------------------------------------------------------------- the lap judge (out)
+
+
+class JudgeEvent(Message):
+    """One thing the lap judge saw (services/judge, docs/judge.md): a lap's start or end, a penalty
+    (``tyre_off``, ``bogged``, ``ran_stop``) or a stop at a stop sign that counted (``stopped``)."""
+
+    stamp: int
+    """When it happened, ns since the epoch (the simulator's truth's clock; a line crossing's time
+    is interpolated between two truth samples)."""
+    kind: Literal["lap_start", "lap_end", "tyre_off", "bogged", "ran_stop", "stopped"]
+    lap: int = 0
+    """The lap it counts in (1 = the first; 0 = before the first lap started: no penalty)."""
+    penalty: float = 0.0
+    """Seconds it adds to the lap's score (0 for lap_start, lap_end, stopped, and before a lap)."""
+    x: float = 0.0
+    """Where the robot's centre was, world frame, m."""
+    y: float = 0.0
+    """m."""
+    text: str = ""
+    """What happened, in words ("left tyre off the road")."""
+
+
+class JudgeState(Message):
+    """``judge/state``: the lap in progress, a few times a second (``judge.rate_hz``)."""
+
+    stamp: int
+    """The newest truth sample's time, ns since the epoch."""
+    track: str
+    """The track's name."""
+    lap: int
+    """The lap in progress (1 = the first); 0 before the robot first crossed the start line."""
+    lap_time: float
+    """Time since the lap started, s (0 before the first lap)."""
+    penalties: float
+    """Penalty seconds of this lap so far."""
+    tyre_off: int = 0
+    """Tyres that left the road in this lap (+1 s each)."""
+    bogged: int = 0
+    """Times the whole robot left the road in this lap (+5 s each)."""
+    ran_stop: int = 0
+    """Stop signs passed without a stop in this lap (+10 s each)."""
+    laps: int = 0
+    """Laps finished so far."""
+    best_score: float = 0.0
+    """Best score of a finished lap, s (0 = none finished)."""
+    events: list[JudgeEvent] = []
+    """The latest events (up to 10), oldest first."""
+
+
+class JudgeLap(Message):
+    """``judge/lap``: one lap's result, once at its end (and the results file's lines)."""
+
+    stamp: int
+    """When the lap ended (crossed the start/finish line), ns since the epoch."""
+    track: str
+    lap: int
+    """1 = the first lap."""
+    time: float
+    """Delivery time: from crossing the start line to crossing it again, s."""
+    penalties: float
+    """Sum of the penalties, s."""
+    reward: float
+    """The no-penalty reward, s (5 when the lap had no penalty, else 0)."""
+    score: float
+    """time + penalties - reward, s (the workshop's score: lower is better)."""
+    tyre_off: int = 0
+    bogged: int = 0
+    ran_stop: int = 0
+    finished: bool = True
+    """False for a lap cut short by the judge's end (written to the results file only)."""
+    events: list[JudgeEvent] = []
+    """The lap's events in order (up to 200)."""
+
+
 # --------------------------------------------------------------------------- housekeeping
 
 
@@ -783,3 +963,7 @@ class RobotInfo(Message):
     ticks_per_rev: int
     max_wheel_speed: float
     """m/s."""
+    wheelbase: float = 0.0
+    """The virtual car's (``cmd/car``): from its rear axle to its front axle, m (0 = not said)."""
+    max_steer: float = 0.0
+    """The virtual car's largest steering angle either way, rad (0 = not said)."""

@@ -32,6 +32,9 @@ With a `Picture` of the realistic profile (`icefloe.sim.realism`), the light var
 the camera looks), and `sim.sensor` makes the camera's picture: motion blur from the turn rate
 during the shutter auto exposure chose, the lens's softness, noise that grows with the gain, JPEG.
 Without one (the ideal profile) the frame is finished as it always was: flicker, noise, blur.
+A track's world is drawn in colour in both: with a realistic picture its floor and road are as
+bright as the light where the robot stands, its signs as the light where they stand, and the
+sensor's blur, noise and JPEG work on the three channels.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ from icefloe.vision.geometry import Intrinsics, Mount, range_bearing
 from icefloe.worldmap import Board, WorldMap, load_world
 
 from . import realism
+from .floor import shared_floor_texture, stop_sign_texture
 from .sensor import LightField, Sensor
 
 NEAR = 0.02
@@ -61,6 +65,9 @@ ON_SURFACE = 0.01
 printed and stuck there: it shows. The lab's markers hang on the walls' inner faces."""
 LIGHT = np.array([0.45, 0.3, 0.84])
 """Direction towards the light (from above, a little from +x +y): faces turned to it are brighter."""
+FLOOR_FAR = 30.0
+"""The road is drawn on the floor up to this far from the lens (m, along the optical axis):
+beyond, the floor's texture would be minified past anything a camera resolves."""
 
 
 @dataclass(frozen=True)
@@ -271,15 +278,32 @@ class CameraRenderer:
         self._board_centres = np.array([[b.x, b.y, b.z] for b in world.boards]).reshape(-1, 3)
         self._obstacles, self._obstacle_normals, self._obstacle_greys = obstacle_faces(world)
         self._obstacle_centres = self._obstacles.mean(axis=1)
+        # A world with a road is drawn in colour (its tiles, its red signs); one without, in grey as always.
+        self._track = world.track
+        self._colour = self._track is not None
         self._background = self._make_background()
+        if self._track is not None:
+            self._floor, self._world_from_floor = shared_floor_texture(self._track, seed)
+            self._background = cv2.cvtColor(self._background, cv2.COLOR_GRAY2BGR)
+        signs = self._track.signs if self._track is not None else ()
+        sign_axes = [board_axes(sign.yaw, 0.0) for sign in signs]
+        # a sign's face stands on the floor: its centre half its size up
+        self._sign_quads = np.array([rectangle_corners(np.array([sign.x, sign.y, sign.size / 2]), right, up,
+                                                       sign.size / 2, sign.size / 2)
+                                     for sign, (right, up, _) in zip(signs, sign_axes, strict=True)]).reshape(-1, 4, 3)
+        self._sign_normals = np.array([normal for _, _, normal in sign_axes]).reshape(-1, 3)
+        self._sign_centres = self._sign_quads.mean(axis=1) if len(signs) else np.zeros((0, 3))
+        self._sign_textures: dict[int, np.ndarray] = {}
         self._light: LightField | None = None
         self._sensor: Sensor | None = None
         if picture is not None and not picture.plain:
             self._light = LightField(world, picture.light_variation, self._rng)
-            self._sensor = Sensor(picture, float(self.k[0, 0]), self.width, self.height, self._rng)
+            self._sensor = Sensor(picture, float(self.k[0, 0]), self.width, self.height, self._rng,
+                                  colour=self._colour)
             self._marker_light = self._light.at(self._centres[:, :2])
             self._board_light = self._light.at(self._board_centres[:, :2])
             self._obstacle_light = self._light.at(self._obstacle_centres[:, :2])
+            self._sign_light = self._light.at(self._sign_centres[:, :2])
             self._noise_bank: list[np.ndarray] = []
             return
         if picture is not None:
@@ -287,9 +311,8 @@ class CameraRenderer:
             noise = picture.noise
         # A bank of noise images drawn once: drawing 300 k normals per frame would cost more
         # than the whole rest of the render.
-        self._noise_bank = [
-            self._rng.normal(0.0, noise, (self.height, self.width)).astype(np.int16) for _ in range(8)
-        ]
+        shape = (self.height, self.width, 3) if self._colour else (self.height, self.width)
+        self._noise_bank = [self._rng.normal(0.0, noise, shape).astype(np.int16) for _ in range(8)]
 
     @classmethod
     def of_robot(cls, config: RobotConfig, seed: int = 1) -> CameraRenderer:
@@ -468,7 +491,8 @@ class CameraRenderer:
             drawn = self._fill(box, pixels)
             drawn &= nearer > seen
             np.copyto(seen, nearer, where=drawn)  # copyto: masked indexing costs several times more
-            np.copyto(image[y0:y1, x0:x1], greys[i], where=drawn)
+            where = drawn[..., None] if image.ndim == 3 else drawn
+            np.copyto(image[y0:y1, x0:x1], greys[i], where=where)
         return depth
 
     def _hidden(self, depth: np.ndarray | None, quad: np.ndarray, normal: np.ndarray,
@@ -495,6 +519,8 @@ class CameraRenderer:
         x1, y1 = min(x1, width), min(y1, height)
         if x1 <= x0 or y1 <= y0:
             return
+        if image.ndim == 3 and tex.ndim == 2:
+            tex = cv2.cvtColor(tex, cv2.COLOR_GRAY2BGR)
         th, tw = tex.shape[:2]
         # Pixel centres sit at integer coordinates, so the texture's outer edge is at -0.5 and n-0.5.
         src = np.float32([[-0.5, -0.5], [tw - 0.5, -0.5], [tw - 0.5, th - 0.5], [-0.5, th - 0.5]])
@@ -504,6 +530,56 @@ class CameraRenderer:
         cv2.warpPerspective(tex, h, (x1 - x0, y1 - y0), dst=roi, flags=cv2.INTER_LINEAR,
                             borderMode=cv2.BORDER_TRANSPARENT)
         image[y0:y1, x0:x1] = roi
+
+    def _floor_ahead(self, lens: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray:
+        """Which canvas pixels look down at the floor in front of the lens, nearer than `FLOOR_FAR`
+        (bool, canvas shape): below the horizon. A pixel's ray ((u - cx) / fx, (v - cy) / fy, 1)
+        falls by w·ray per metre of depth (w: the world's z in the camera frame), affine in u and v."""
+        k, (width, height) = self._canvas_k, self._canvas_size
+        w = world_from_camera[2]
+        u = np.arange(width, dtype=np.float32) * np.float32(w[0] / k[0, 0])
+        v = np.arange(height, dtype=np.float32) * np.float32(w[1] / k[1, 1])
+        c = w[2] - w[0] * k[0, 2] / k[0, 0] - w[1] * k[1, 2] / k[1, 1]
+        return (v[:, None] + np.float32(c)) + u[None, :] < np.float32(-lens[2] / FLOOR_FAR)
+
+    def _draw_floor(self, image: np.ndarray, lens: np.ndarray, world_from_camera: np.ndarray) -> None:
+        """Paint the track's tiles on the floor: its texture warped by the floor plane's homography
+        (texture pixel → world (x, y, 0) → canvas), below the horizon only (the homography also maps
+        the floor behind the lens, upside down above it). Drawn first: everything else stands on it."""
+        ahead = self._floor_ahead(lens, world_from_camera)
+        rows = np.flatnonzero(ahead.any(axis=1))
+        if not len(rows) or lens[2] <= 0:
+            return
+        top = int(rows[0])
+        camera_from_world = world_from_camera.T
+        plane = np.column_stack([camera_from_world[:, 0], camera_from_world[:, 1], -camera_from_world @ lens])
+        shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, -top], [0.0, 0.0, 1.0]])  # warp only the rows below the top
+        h = shift @ self._canvas_k @ plane @ self._world_from_floor
+        width, height = self._canvas_size
+        warped = cv2.warpPerspective(self._floor, h, (width, height - top), flags=cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+        show = ahead[top:] & (warped[..., 3] > 127)
+        np.copyto(image[top:], warped[..., :3], where=show[..., None])
+
+    def _draw_sign(self, image: np.ndarray, quad: np.ndarray, light: float = 1.0) -> None:
+        """Warp a stop sign's face onto ``quad`` (4x2 canvas px), only inside its octagon, as bright as
+        ``light`` (its light over the light auto exposure is set for)."""
+        box = self._bbox(quad)
+        if box is None:
+            return
+        side_px = max(np.linalg.norm(quad[1] - quad[0]), np.linalg.norm(quad[3] - quad[0]))
+        size = self._mip(side_px, 1, 256)
+        tex = self._sign_textures.get(size)
+        if tex is None:
+            tex = self._sign_textures[size] = stop_sign_texture(size)
+        x0, y0, x1, y1 = box
+        n = tex.shape[0]
+        src = np.float32([[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]])
+        h = cv2.getPerspectiveTransform(src, np.float32(quad - [x0, y0]))
+        warped = cv2.warpPerspective(tex, h, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+        face = warped[..., :3] if light == 1.0 else cv2.convertScaleAbs(warped[..., :3], alpha=light)
+        np.copyto(image[y0:y1, x0:x1], face, where=warped[..., 3:] > 127)
 
     # ------------------------------------------------------------------ the frame
 
@@ -523,13 +599,13 @@ class CameraRenderer:
         robot_origin = np.array([x, y, 0.0])
         # Auto exposure is set for the light where the camera looks (a metre ahead); everything is as
         # bright as its own light against that.
-        marker_light = board_light = obstacle_light = None
-        background = self._background
+        marker_light = board_light = obstacle_light = sign_light = None
+        floor_light = 1.0  # the floor's (and a track's road's) light: where the robot stands
         if self._light is not None:
             view = self._light.at(lens[:2] + world_from_camera[:2, 2])[0]
             marker_light, board_light = self._marker_light / view, self._board_light / view
-            obstacle_light = self._obstacle_light / view
-            background = cv2.convertScaleAbs(background, alpha=float(self._light.at(lens[:2])[0] / view))
+            obstacle_light, sign_light = self._obstacle_light / view, self._sign_light / view
+            floor_light = float(self._light.at(lens[:2])[0] / view)
 
         def to_camera(points_world: np.ndarray) -> np.ndarray:
             return (points_world - lens) @ world_from_camera  # row vectors: R^T (p - lens)
@@ -546,12 +622,29 @@ class CameraRenderer:
         for i in range(len(self.world.boards)):
             if self._board_normals[i] @ board_to_lens[i] > 0 and (boards_c[i, :, 2] > NEAR).all():
                 drawn.append((float(np.linalg.norm(board_to_lens[i])), "board", i))
+        signs_c = to_camera(self._sign_quads)
+        sign_to_lens = lens - self._sign_centres
+        for i in range(len(self._sign_quads)):
+            if self._sign_normals[i] @ sign_to_lens[i] > 0 and (signs_c[i, :, 2] > NEAR).all():
+                drawn.append((float(np.linalg.norm(sign_to_lens[i])), "sign", i))
 
-        image = background.copy() if background is self._background else background
+        image = self._background.copy()
+        if self._track is not None:
+            self._draw_floor(image, lens, world_from_camera)
+        if floor_light != 1.0:
+            cv2.convertScaleAbs(image, dst=image, alpha=floor_light)
         depth = self._draw_obstacles(image, to_camera, lens, world_from_camera, obstacle_light)
         normals_c = self._normals @ world_from_camera
         visible: list[Visible] = []
         for _, kind, i in sorted(drawn, reverse=True):
+            if kind == "sign":
+                quad = self._project(signs_c[i])
+                hidden = self._hidden(depth, quad, self._sign_normals[i] @ world_from_camera, signs_c[i, 0])
+                before = self._copy(image, hidden)
+                self._draw_sign(image, quad, 1.0 if sign_light is None else float(sign_light[i]))
+                if hidden is not None and before is not None:
+                    self._restore(image, before, *hidden)
+                continue
             if kind == "board":
                 quad = self._project(boards_c[i])
                 hidden = self._hidden(depth, quad, self._board_normals[i] @ world_from_camera, boards_c[i, 0])
@@ -596,7 +689,7 @@ class CameraRenderer:
     def _restore(image: np.ndarray, before: np.ndarray, box: tuple[int, int, int, int], mask: np.ndarray) -> None:
         """Put back, inside ``box``, the pixels an obstacle hides (``mask``) as they were ``before``."""
         x0, y0, x1, y1 = box
-        np.copyto(image[y0:y1, x0:x1], before, where=mask)
+        np.copyto(image[y0:y1, x0:x1], before, where=mask[..., None] if image.ndim == 3 else mask)
 
     def board_corners(self, x: float, y: float, theta: float) -> list[np.ndarray | None]:
         """Per board of the world: where its inner corners are in the frame seen from pose (x, y, theta),
@@ -618,4 +711,4 @@ class CameraRenderer:
         if self.noise > 0:
             noise = self._noise_bank[self._rng.integers(len(self._noise_bank))]
             gray = cv2.add(gray, noise, dtype=cv2.CV_8U)
-        return cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+        return gray if self._colour else cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)

@@ -10,6 +10,10 @@ lighting changes and sensor noise, from a seeded generator, like the robot's cam
 Markers are drawn anti-aliased, at `SUPERSAMPLE` times the resolution and averaged down, so
 their corners land where the geometry says: the localizer's accuracy is then its own, not
 the renderer's.
+
+A world with a road (``track = ...``, `icefloe.track`) is drawn in colour: its tiles and stop
+lines lie on the floor as the robot's camera sees them (`icefloe.sim.floor`), warped by the floor
+plane's homography; its signs stand too low to matter from the ceiling and are not drawn.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ import numpy as np
 from icefloe.vision.geometry import Intrinsics
 from icefloe.vision.overhead import CameraPose, flat_square_corners, project
 from icefloe.worldmap import WorldMap
+
+from .floor import shared_floor_texture
 
 SUPERSAMPLE = 4
 BODY_RADIUS = 0.14
@@ -59,7 +65,9 @@ class OverheadRenderer:
         self._textures: dict[tuple[int, int], np.ndarray] = {}
         self.noise, self.lighting = noise, lighting
         self._rng = np.random.default_rng(seed)
-        self._noise_bank = [self._rng.normal(0.0, noise, (self.height, self.width)).astype(np.int16)
+        self._colour = world.track is not None
+        shape = (self.height, self.width, 3) if self._colour else (self.height, self.width)
+        self._noise_bank = [self._rng.normal(0.0, noise, shape).astype(np.int16)
                             for _ in range(4)] if noise > 0 else []
         self._floor = self._make_floor()
 
@@ -68,9 +76,23 @@ class OverheadRenderer:
         rows = np.arange(self.height, dtype=np.float32)[:, None]
         cols = np.arange(self.width, dtype=np.float32)[None, :]
         floor = (110 + 20 * rows / self.height + 10 * cols / self.width).astype(np.uint8)
+        if self.world.track is not None:
+            floor = self._draw_road(cv2.cvtColor(floor, cv2.COLOR_GRAY2BGR))
         for marker in self.world.floor_markers:
             self.draw_marker(floor, marker.id, marker.size, flat_square_corners(
                 marker.x, marker.y, 0.0, marker.yaw, marker.size / 2 * self._cells / (self._cells - 2)))
+        return floor
+
+    def _draw_road(self, floor: np.ndarray) -> np.ndarray:
+        """The track's tiles on ``floor`` (BGR): the floor texture through the homography
+        texture pixel → world (x, y, 0) → image (the lens is a pinhole)."""
+        assert self.world.track is not None
+        texture, world_from_texture = shared_floor_texture(self.world.track)
+        r, t = self.pose.rotation, np.asarray(self.pose.translation, dtype=float).reshape(3)
+        h = self.intrinsics.camera_matrix @ np.column_stack([r[:, 0], r[:, 1], t]) @ world_from_texture
+        warped = cv2.warpPerspective(texture, h, (self.width, self.height), flags=cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+        np.copyto(floor, warped[..., :3], where=warped[..., 3:] > 127)
         return floor
 
     def _texture(self, marker_id: int, cell_px: int) -> np.ndarray:
@@ -104,6 +126,8 @@ class OverheadRenderer:
         while cell_px < 64 and cell_px < side / self._cells:
             cell_px *= 2
         tex = self._texture(marker_id, cell_px)
+        if image.ndim == 3:
+            tex = cv2.cvtColor(tex, cv2.COLOR_GRAY2BGR)
         th, tw = tex.shape[:2]
         src = np.float32([[-0.5, -0.5], [tw - 0.5, -0.5], [tw - 0.5, th - 0.5], [-0.5, th - 0.5]])
         h = cv2.getPerspectiveTransform(src, np.float32(big_quad))
@@ -117,7 +141,7 @@ class OverheadRenderer:
                                np.full(len(angles), max(robot.marker_height - 0.005, 0.0))])
         if (self.pose.to_camera(rim)[:, 2] <= 0.01).any():
             return
-        cv2.fillPoly(image, [np.round(project(self.intrinsics, self.pose, rim) * 16).astype(np.int32)], 45,
+        cv2.fillPoly(image, [np.round(project(self.intrinsics, self.pose, rim) * 16).astype(np.int32)], (45, 45, 45),
                      lineType=cv2.LINE_AA, shift=4)
 
     def render(self, robots: Sequence[RobotView]) -> np.ndarray:
@@ -135,4 +159,4 @@ class OverheadRenderer:
         gray = cv2.convertScaleAbs(image, alpha=gain)
         if self._noise_bank:
             gray = cv2.add(gray, self._noise_bank[self._rng.integers(len(self._noise_bank))], dtype=cv2.CV_8U)
-        return cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+        return gray if self._colour else cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)

@@ -62,6 +62,9 @@ class LightField:
         for o in world.obstacles:
             cx, cy, *_ = o.rectangle()
             points.append((cx, cy))
+        if world.track is not None:  # a track's lamps hang over its tiles
+            ts = world.track.tile_size
+            points += [(t.col * ts, t.row * ts) for t in world.track.tiles]
         pts = np.array(points or [(0.0, 0.0)], dtype=float).reshape(-1, 2)
         low, high = pts.min(axis=0) - 0.5, pts.max(axis=0) + 0.5
         self.variation = variation
@@ -101,22 +104,26 @@ def smear(image: np.ndarray, length_px: float) -> np.ndarray:
 
 
 class Sensor:
-    """From the drawn (grey) frame to the camera's BGR picture: motion blur, the lens's softness,
-    flicker, noise at the gain auto exposure chose, JPEG; draws from ``rng`` (seeded: repeatable)."""
+    """From the drawn frame (grey; BGR with ``colour``, a track's world) to the camera's BGR picture:
+    motion blur, the lens's softness, flicker, noise at the gain auto exposure chose, JPEG; draws from
+    ``rng`` (seeded: repeatable)."""
 
-    def __init__(self, picture: Picture, fx: float, width: int, height: int, rng: np.random.Generator) -> None:
+    def __init__(self, picture: Picture, fx: float, width: int, height: int, rng: np.random.Generator,
+                 *, colour: bool = False) -> None:
         self.picture, self.fx = picture, fx
         self._rng = rng
-        self._bank = [rng.standard_normal((height, width), dtype=np.float32) for _ in range(NOISE_BANK)]
+        self._colour = colour
+        shape = (height, width, 3) if colour else (height, width)
+        self._bank = [rng.standard_normal(shape, dtype=np.float32) for _ in range(NOISE_BANK)]
         self.shutter_s, self.gain = split_exposure(picture.exposure_s)
         """The last frame's shutter time (s) and analogue gain."""
 
-    def expose(self, gray: np.ndarray, turn_rate: float, light: float, mean_light: float) -> np.ndarray:
-        """The picture of ``gray`` (drawn as auto exposure renders the place the camera looks at, whose
+    def expose(self, drawn: np.ndarray, turn_rate: float, light: float, mean_light: float) -> np.ndarray:
+        """The picture of ``drawn`` (drawn as auto exposure renders the place the camera looks at, whose
         light is ``light``; the room's average is ``mean_light``) while turning at ``turn_rate`` rad/s."""
         p = self.picture
         self.shutter_s, self.gain = split_exposure(p.exposure_s * mean_light / max(light, 1e-3))
-        image = smear(gray, self.fx * abs(turn_rate) * self.shutter_s) if p.exposure_s else gray
+        image = smear(drawn, self.fx * abs(turn_rate) * self.shutter_s) if p.exposure_s else drawn
         if p.blur_px > 0:
             image = cv2.GaussianBlur(image, (0, 0), p.blur_px)
         flicker = 1.0 + p.flicker * self._rng.uniform(-1.0, 1.0)
@@ -126,8 +133,8 @@ class Sensor:
         if p.jpeg_quality:
             ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, p.jpeg_quality])
             if ok:
-                image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
-        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+                image = cv2.imdecode(data, cv2.IMREAD_COLOR if self._colour else cv2.IMREAD_GRAYSCALE)
+        return image if self._colour else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
 
 
 class Delivery:

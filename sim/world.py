@@ -91,12 +91,19 @@ class World:
 
     def __init__(self, geometry: Geometry, *, seed: int = 0, slip: float = 0.0,
                  encoder_noise: float = 0.0, obstacles: tuple[Obstacle, ...] = (),
-                 wheels: Wheels | None = None) -> None:
+                 wheels: Wheels | None = None,
+                 motor_tau: float = MOTOR_TAU, counts_per_pct: float = SLOPE_COUNTS_PER_PCT) -> None:
         """``slip``: relative std dev of ground travel vs rim travel per step (0 = none).
         ``encoder_noise``: relative std dev of counted vs turned wheel angle per step.
         ``seed``: random seed for both; 0 picks one and prints it so a run can be repeated.
         ``wheels``: the true wheels and motors (None: exactly ``geometry``, dead band 9 %).
+        ``motor_tau``, ``counts_per_pct``: another motor than the report's (`MOTOR_TAU`,
+        `SLOPE_COUNTS_PER_PCT`), to see what depends on the motor (bench/timed_motion_model.py).
         """
+        if not (motor_tau > 0 and counts_per_pct > 0 and math.isfinite(motor_tau + counts_per_pct)):
+            raise ValueError("motor_tau and counts_per_pct must be finite and > 0")
+        self.motor_tau = motor_tau
+        self.counts_per_pct = counts_per_pct
         if slip < 0 or encoder_noise < 0 or not math.isfinite(slip + encoder_noise):
             raise ValueError("slip and encoder_noise must be finite and >= 0")
         if seed == 0:
@@ -196,7 +203,7 @@ class World:
         volts = self._terminal_voltage() if volts is None else volts
         if not self.wheels.battery_sag:
             volts = NOMINAL_VOLTAGE
-        counts_per_s = SLOPE_COUNTS_PER_PCT * pct * volts / NOMINAL_VOLTAGE
+        counts_per_s = self.counts_per_pct * pct * volts / NOMINAL_VOLTAGE
         return math.copysign(counts_per_s * self._m_per_count, duty)
 
     def step(self, dt: float) -> None:
@@ -208,13 +215,13 @@ class World:
             travel = [0.0, 0.0]               # rim travel this step, m
             speed = [0.0, 0.0]
             noise = [0.0, 0.0]                # relative encoder error this step
-            decay = math.exp(-dt / MOTOR_TAU)
+            decay = math.exp(-dt / self.motor_tau)
             ground = [0.0, 0.0]               # ground travel this step, m
             for i in range(2):
                 target = 0.0 if self._stalled[i] else self.steady_speed(self._duty[i], volts, i)
                 v0 = self._speed[i]
                 # Exact integral of a first-order lag over the step.
-                travel[i] = target * dt + (v0 - target) * MOTOR_TAU * (1.0 - decay)
+                travel[i] = target * dt + (v0 - target) * self.motor_tau * (1.0 - decay)
                 speed[i] = target + (v0 - target) * decay
                 self._motor_current[i] = self._current(i, target, volts)
                 noise[i] = self._rng.gauss(0.0, self.encoder_noise) if self.encoder_noise else 0.0

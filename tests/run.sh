@@ -65,10 +65,11 @@ echo "== pytest"
 # Two workers, a test file each at a time (a file's tests share their robot): most tests wait on real
 # service processes (2026-11-26, 2 cores, fresh clone: 915 passed in 15 min 25 s with the box beside
 # them, 16 min 28 s in all: docs/box.md; with six CPU-bound processes beside it, 16-19 min:
-# docs/DEVELOPING.md). ICEFLOE_TEST_WORKERS=0: one process.
+# docs/DEVELOPING.md). ICEFLOE_TEST_WORKERS=0: one process. The 30 slowest are listed: where CI's
+# 25 minutes go.
 status=0
 ICEFLOE_BOX="$( [ "$box" = 1 ] && echo 0 || echo "${ICEFLOE_BOX:-0}")" \
-    .venv/bin/pytest -n "${ICEFLOE_TEST_WORKERS:-2}" --dist loadfile "$@" || status=$?
+    .venv/bin/pytest -n "${ICEFLOE_TEST_WORKERS:-2}" --dist loadfile --durations=30 "$@" || status=$?
 if [ -n "${boxing:-}" ]; then
     echo "== the robot in a box (tests/test_box.py)"
     wait "$boxing" || status=1

@@ -13,8 +13,10 @@ import pytest
 from conftest import ROOT, Robot
 
 from icefloe import config as config_mod
+from icefloe import ros2
 from icefloe.credentials import make, read
 from icefloe.errors import NotReachable
+from icefloe.router import access_control, permits
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -50,6 +52,7 @@ async def test_only_the_robots_own_credentials_command_it(make_robot, tmp_path: 
 
     async with robot.node("hwbridge-stand-in") as service:
         twist = service.subscribe(keys.TWIST)
+        car = service.subscribe(keys.CAR)
         pose = service.publisher(keys.ODOM_POSE)
         async with session(robot) as guest:  # no credentials: the read-only guest
             poses = guest.subscribe(keys.ODOM_POSE)
@@ -57,6 +60,7 @@ async def test_only_the_robots_own_credentials_command_it(make_robot, tmp_path: 
             pose.put(m.Pose(stamp=1, x=1.0, y=0.0, theta=0.0))
             assert (await asyncio.wait_for(poses.__anext__(), 3)).x == 1.0
             assert not await reaches(guest, twist, keys.TWIST, m.Twist(v=0.2, w=0.0))
+            assert not await reaches(guest, car, keys.CAR, m.CarDrive(v=0.2, steer=0.3))  # nor drive it as a car
             with pytest.raises(NotReachable):  # nor call its queryables
                 await guest.query(keys.INFO, timeout=1.0)
             token = guest.session.liveliness().declare_token(keys.alive_key(robot.name, "fake"))
@@ -69,6 +73,7 @@ async def test_only_the_robots_own_credentials_command_it(make_robot, tmp_path: 
                 pass
         async with session(robot, own.user, own.password) as owner:
             assert await reaches(owner, twist, keys.TWIST, m.Twist(v=0.1, w=0.0))
+            assert await reaches(owner, car, keys.CAR, m.CarDrive(v=0.1, steer=0.3))
         with pytest.raises(NotReachable):
             async with session(robot, own.user, "not the password"):
                 pass
@@ -165,3 +170,95 @@ def make_certificates(folder: Path) -> None:
     (folder / "san.cnf").write_text("subjectAltName=DNS:localhost,IP:127.0.0.1\n")
     openssl("x509", "-req", "-in", "robot.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
             "-out", "robot.pem", "-days", "3650", "-extfile", "san.cnf")
+
+
+# ---------------------------------------------------------------------- ROS 2's keys (docs/ros2.md)
+
+
+def data_key(namespace: str, topic: str = "cmd_vel", ros_type: str = "geometry_msgs/msg/Twist", domain: int = 0) -> str:
+    """A topic's data key in a namespace: ``p1`` -> ``0/p1/cmd_vel/geometry_msgs::msg::dds_::Twist_/RIHS01_...``."""
+    return ros2.Endpoint(domain, f"/{namespace}", f"/{namespace}/{topic}", ros_type, "jazzy").data_key
+
+
+def node_token(namespace: str, node: str = "teleop") -> str:
+    """rmw_zenoh's token of a node (icefloe/ros2.py writes them as design.md shows them)."""
+    return ros2.node_token(0, "aac3178e146ba6f1fc6e6a4085e77f21", 0, namespace, node)
+
+
+def endpoint_token(namespace: str, topic: str, kind: str = "MP") -> str:
+    return ros2.endpoint_token(ros2.Endpoint(0, namespace, topic, "geometry_msgs/msg/Twist", "jazzy"), kind,
+                               "aac3178e146ba6f1fc6e6a4085e77f21", 0, 1, "teleop")
+
+
+def test_ros2_keys_are_the_owners_to_put_and_everyones_to_read() -> None:
+    """Who may do what with ROS 2's keys, as a lab router with robots p1 and p2 and a TA decides it
+    (`permits` reads the very rules the router gets; tests/test_ros2_service.py drives through a real one)."""
+    acl = access_control([("p1", "p1"), ("p2", "p2"), ("*", "ta")])
+    cmd_vel, odom = data_key("p1"), data_key("p1", "odom", "nav_msgs/msg/Odometry")
+    # p1's owner (and its ros2 service, the same login): publish in its namespace, subscribe, read the graph.
+    for key in (cmd_vel, odom):
+        assert permits(acl, "p1", "put", key), key
+    for user in ("p1", "p2", "guest", "ta"):  # everybody reads every robot's topics and ROS 2's graph
+        assert permits(acl, user, "declare_subscriber", odom), user
+        assert permits(acl, user, "declare_subscriber", "0/**"), user
+        assert permits(acl, user, "declare_subscriber", cmd_vel), user  # the service's subscription
+        assert permits(acl, user, "liveliness_query", "@ros2_lv/0/**"), user
+        assert permits(acl, user, "declare_liveliness_subscriber", "@ros2_lv/0/**"), user
+        assert permits(acl, user, "put", odom, flow="egress"), user
+        assert permits(acl, user, "liveliness_token", node_token("/p1", "icefloe"), flow="egress"), user
+    # Nobody else puts on p1's keys: not the guest, not p2's owner, not the TA (ROS 2 has no stop message).
+    for user in ("p2", "guest", "ta", "nobody"):
+        assert not permits(acl, user, "put", cmd_vel), user
+        assert not permits(acl, user, "delete", cmd_vel), user
+    # Wildcards that reach beyond p1's namespace are refused even for p1's owner; in it, the service drops them.
+    for key in ("0/**", "0/*/cmd_vel/**", "**", "*/p1/**", "0/p$*/cmd_vel/**", "0/p1$*/**", "0/*/**",
+                data_key("p2"), data_key("p10"), "1/p1/cmd_vel/**", "icefloe/p2/cmd/twist"):
+        assert not permits(acl, "p1", "put", key), key
+    assert permits(acl, "p1", "put", "0/p1/cmd_vel/**")  # its own space: services/ros2 drops a wildcard
+    # Nobody subscribes beyond what is public, or asks ROS 2 services (queryables) of a robot.
+    for user in ("p1", "guest"):
+        assert not permits(acl, user, "declare_subscriber", "**"), user
+        assert not permits(acl, user, "query", "0/p1/**"), user
+        assert not permits(acl, user, "declare_queryable", "0/p1/**"), user
+        assert not permits(acl, user, "liveliness_query", "@ros2_lv/**"), user  # another domain, or all
+
+
+def test_ros2_liveliness_tokens_name_the_owners_namespace_only() -> None:
+    """rmw_zenoh declares a token per node and per publisher or subscription: the owner's tokens must
+    name its robot's namespace (as node, or as topic of a node in the root namespace); a token that
+    names another robot's namespace is refused, so nobody can fake another robot's node or topics."""
+    acl = access_control([("p1", "p1"), ("p2", "p2")])
+    mine = [node_token("/p1", "icefloe"), node_token("/p1/arm", "gripper"),
+            endpoint_token("/p1", "/p1/odom"), endpoint_token("/p1", "/p1/cmd_vel", "MS"),
+            endpoint_token("", "/p1/cmd_vel"), endpoint_token("/p1/arm", "/p1/arm/joint_states")]
+    for token in mine:
+        assert permits(acl, "p1", "liveliness_token", token), token
+        assert not permits(acl, "guest", "liveliness_token", token), token  # the guest declares nothing
+        assert not permits(acl, "p2", "liveliness_token", token), token
+    # A node in the root namespace (`ros2 topic echo`, teleop_twist_keyboard) names no robot: any owner's.
+    assert permits(acl, "p1", "liveliness_token", node_token("", "teleop"))
+    assert not permits(acl, "guest", "liveliness_token", node_token("", "teleop"))
+    spoofs = [node_token("/p2", "icefloe"), node_token("/p10", "icefloe"), node_token("/p1x", "icefloe"),
+              endpoint_token("", "/p2/cmd_vel"), endpoint_token("/p2", "/p1/cmd_vel"),  # a node in p2's name
+              endpoint_token("/p1", "/p2/odom"), endpoint_token("/p1", "/rosout"), endpoint_token("", "/cmd_vel"),
+              "@ros2_lv/0/**", "@ros2_lv/0/*/0/0/NN/%/*/icefloe", "@ros2_lv/0/*/0/1/MP/%/%/teleop/*/**",
+              "@ros2_lv/1/aac3/0/0/NN/%/%p1/icefloe",  # another domain
+              keys.alive_key("p2", "ros2")]
+    for token in spoofs:
+        assert not permits(acl, "p1", "liveliness_token", token), token
+
+
+def test_ros2_rules_follow_the_robots_config() -> None:
+    """A robot's router takes the domain and namespace from its config (`router_config`); a robot whose
+    name ROS 2 cannot take and that sets no namespace gets no ROS 2 keys at all."""
+    acl = access_control([("pen-1", "u1")], ros2_domain=7, ros2_namespaces={"pen-1": "/lab/pen1"})
+    assert permits(acl, "u1", "put", data_key("lab/pen1", domain=7))
+    assert not permits(acl, "u1", "put", data_key("lab/pen1"))  # domain 0 is not this robot's
+    assert not permits(acl, "u1", "put", "7/lab/**")
+    assert permits(acl, "u1", "liveliness_token", "@ros2_lv/7/z/0/0/NN/%/%lab%pen1/icefloe")
+    assert not permits(acl, "u1", "liveliness_token", "@ros2_lv/7/z/0/0/NN/%/%lab/icefloe")
+    assert permits(acl, "guest", "declare_subscriber", "7/**")
+    assert not permits(acl, "guest", "declare_subscriber", "0/**")
+    nameless = access_control([("pen-1", "u1")])
+    assert not any(permits(nameless, "u1", m, k) for m in ("put", "liveliness_token")
+                   for k in ("0/pen-1/cmd_vel/T/H", "@ros2_lv/0/z/0/0/NN/%/%pen-1/icefloe"))

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 from conftest import ROOT, Robot, processes_naming, robot_config
+from terminal import Terminal
 
 from icefloe.errors import EXIT_CONFIG
 
@@ -70,6 +71,22 @@ def test_status_query_and_echo_log_against_a_service(robot: Robot) -> None:
     out, _ = log.communicate(timeout=10)
     lines = [json.loads(line) for line in out.splitlines()]
     assert any(e["service"] == "info" and "serving" in e["text"] for e in lines), out
+
+
+def test_echo_at_a_terminal_says_it_listens(robot: Robot) -> None:
+    """A student's `icefloe echo log` on a robot at rest would print nothing for minutes: at a terminal
+    it says what it listens on (stderr), and Ctrl-C ends it cleanly."""
+    term = Terminal([*ICEFLOE, "echo", "log", "--config", str(robot.config_path)], cwd=ROOT)
+    try:
+        deadline = time.monotonic() + 30
+        while f"listening on icefloe/{robot.name}/log (Ctrl-C stops)" not in term.text:
+            assert term.alive() and time.monotonic() < deadline, term.text
+            time.sleep(0.1)
+        term.ctrl_c()
+        assert term.wait(20) in (0, 130, -2), term.text
+        assert "Traceback" not in term.text, term.text
+    finally:
+        term.kill()
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])

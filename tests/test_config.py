@@ -113,6 +113,17 @@ def test_extends_loop_is_an_error(tmp_path: Path) -> None:
     ("[sim]\ntruth_rate_hz = -5", "sim.truth_rate_hz: Expected `float` > 0.0"),
     ("[webapi]\nport = 70000", "webapi.port: Expected `int` <= 65535"),
     ("[camera]\njpeg_quality = 101", "camera.jpeg_quality: Expected `int` <= 100"),
+    ("[camera]\nwidth = 0", "camera.width: Expected `int` >= 64"),
+    ("[camera]\nheight = 100_000", "camera.height: Expected `int` <= 4096"),
+    ("[camera]\nfps = 1000.0", "camera.fps: Expected `float` <= 120.0"),
+    ("[camera]\ndetection_rate_hz = -1.0", "camera.detection_rate_hz: Expected `float` >= 0.0"),
+    ("[camera]\ndetection_rate_hz = nan", "camera.detection_rate_hz: Expected `float` >= 0.0"),
+    ("[camera]\nfps = 10.0\ndetection_rate_hz = 15.0",
+     "camera: detection_rate_hz (15) must be at most fps (10): detection cannot search frames that were never "
+     "captured"),
+    ("[camera]\nwidth = 160\nheight = 120",
+     "camera: image_width x image_height (320x240) must fit in width x height (160x120): the images are the "
+     "frames made smaller"),
 ])
 def test_a_value_out_of_range_is_refused_naming_the_key(tmp_path: Path, toml: str, named: str) -> None:
     path = write(tmp_path, f'extends = "sim"\n{toml}\n')

@@ -93,3 +93,21 @@ def test_down_dry_run_removes_units(dry_run: str) -> None:
                          cwd=ROOT, timeout=60)
     assert res.returncode == 0, res.stderr
     assert "icefloe remove for robot 'penguin1'" in res.stdout and "(dry run: nothing changed)" in res.stdout
+
+
+def test_the_robots_units_are_protected_from_the_students_programs() -> None:
+    """Every unit of the robot in icefloe.slice (CPU weight over a user's session, memory kept), each
+    process scored below a student's program for the OOM killer, hwbridge lowest; none made unkillable.
+    That they hold against real hogs is the box's check (tests/test_box.py, test_6)."""
+    cfg = config.load("penguin1")
+    rendered = deploy.units(cfg, deploy.ROBOTS / "penguin1.toml", "/opt/icefloe/venv/bin/python")
+    sliced = rendered["icefloe.slice"].splitlines()
+    assert "CPUWeight=1000" in sliced and any(line.startswith("MemoryMin=") for line in sliced)
+    scores = {}
+    for name, text in rendered.items():
+        if name.endswith(".service"):
+            lines = text.splitlines()
+            assert "Slice=icefloe.slice" in lines, name
+            scores[name] = int(next(line for line in lines if line.startswith("OOMScoreAdjust=")).split("=")[1])
+    assert all(-1000 < score < 0 for score in scores.values()), scores
+    assert min(scores, key=scores.__getitem__) == "icefloe-hwbridge.service", scores

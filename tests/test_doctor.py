@@ -195,7 +195,9 @@ def test_a_router_that_never_answers_is_said_in_one_line_in_bounded_time() -> No
     line = problems(res)[0]
     assert line.startswith(f"router: no session within {doc.BUDGET_S:g} s: tcp/127.0.0.1:"), line
     assert "accepts connections but did not answer" in line, line
-    assert first and ended - first[0] < doc.BUDGET_S + 4, ended - first[0]
+    print(f"doctor ended {ended - first[0]:.1f} s after its first connection")
+    # its budget, then closing and Python's exit: 9.0 s at load 18 here, 12.8 s in a loaded CI run (Zenoh alone: 20 s)
+    assert first and ended - first[0] < doc.BUDGET_S + 9, ended - first[0]
 
 
 # ---------------------------------------------------------------------- the local checks, alone

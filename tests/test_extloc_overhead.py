@@ -141,58 +141,6 @@ def test_overhead_calibrate_command_from_an_image_file(camera, tmp_path, capsys)
     assert "0 of world lab's 8 floor markers in view" in capsys.readouterr().err
 
 
-async def test_overhead_old_api_answers_hostile_requests_in_bounded_work() -> None:
-    """The old localiser's routes: bad and huge group numbers, a robot not seen lately, and a flood
-    of picture requests (JPEG encoded at most image_rate_hz times a second, however many ask)."""
-    import asyncio
-    import time
-
-    import aiohttp
-    from conftest import free_port
-
-    from icefloe.config import Overhead
-    from icefloe.schemas import messages as m
-    from icefloe.services.extloc import oldapi
-
-    seen = oldapi.Seen()
-    seen.frame = (time.time_ns(), np.full((720, 1280, 3), 100, np.uint8))
-    seen.poses["a"] = (time.monotonic(), m.ExternalPose(stamp=1, x=1.0, y=2.0, theta=0.5, covariance=[0.0] * 9))
-    seen.poses["b"] = (time.monotonic() - 5.0, m.ExternalPose(stamp=1, x=3.0, y=0.0, theta=0.0, covariance=[0.0] * 9))
-    api = oldapi.OldApi(Overhead(image_rate_hz=2.0), {1: "a", 2: "b"}, seen)
-    port = free_port()
-    await api.start("127.0.0.1", port)
-    encoded = 0
-    real_imencode = oldapi.cv2.imencode
-
-    def counting(*args: object) -> object:
-        nonlocal encoded
-        encoded += 1
-        return real_imencode(*args)
-
-    oldapi.cv2.imencode = counting
-    try:
-        async with aiohttp.ClientSession(f"http://127.0.0.1:{port}") as http:
-            async def get(path: str) -> tuple[int, object]:
-                async with http.get(path) as r:
-                    return r.status, await (r.json() if r.content_type == "application/json" else r.read())
-
-            assert await get("/pose/get?group=1") == (200, {"pose": {"x": 1.0, "y": 2.0, "theta": 0.5}})
-            status, answer = await get("/pose/get?group=2")  # seen 5 s ago: no stale pose
-            assert status == 404 and "robot b is not in view" in answer["error"]
-            for bad in ("", "x", "1.5", "%00", "9" * 5000, "-1", "99999999999999999999"):
-                status, answer = await get(f"/pose/get?group={bad}")
-                assert status in (400, 404), (bad, status)
-                assert len(answer["error"]) < 200
-            start = time.monotonic()
-            results = await asyncio.gather(*(get("/camera/get") for _ in range(50)))
-            elapsed = time.monotonic() - start
-            assert all(status == 200 and bytes(body[:2]) == b"\xff\xd8" for status, body in results)
-            assert encoded <= 1 + math.ceil(elapsed * 2.0), (encoded, elapsed)  # not 50
-    finally:
-        oldapi.cv2.imencode = real_imencode
-        await api.stop()
-
-
 def test_overhead_lens_distortion_is_undone_before_the_floor() -> None:
     """With a calibration's distortion (as `icefloe calibrate` writes it), a pixel goes back to the
     very point on the plane it was projected from; ignoring the distortion would be centimetres off."""

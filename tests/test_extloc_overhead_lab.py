@@ -5,8 +5,9 @@ its own router joined to the lab), and the lab's localizer (``services.extloc``)
 the lab's own credentials, rendering the overhead camera from the robots' ``sim/truth``. Checked:
 each robot's pose on its own ``extloc/pose`` against the simulator's truth, on the lab router and
 on the robot's own router; a robot carried out
-of view gets no pose; the old localiser's HTTP API as pibot_client calls it (through
-``requests``); and a student who forges an external pose, their own robot's or another's, on the
+of view gets no pose; the old localiser's HTTP API read by the course's pibot_client, unchanged
+(tests/course_clients.py): the old square's frame, degrees, zeros for an unknown group and for the robot out
+of view, hostile query strings; and a student who forges an external pose, their own robot's or another's, on the
 lab router or their robot's own router, with or without wildcards, is refused. Takes 30-60 s.
 """
 
@@ -19,11 +20,10 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 import requests
 from conftest import ROOT
+from course_clients import localiser_client
 
 from icefloe import credentials
 from icefloe.runtime import MSGPACK, Node
@@ -59,16 +59,13 @@ def start_localizer(lab: Lab, http_port: int) -> Proc:
                 lab.root / "extloc.log")
 
 
-# As the course's pibot_client calls the old localiser (PiBot(..., localiser_ip, localiser_port)).
-def get_localizer_pose(ip: str, port: int, group: int) -> tuple[float, float, float]:
-    resp = requests.get(f"http://{ip}:{port}/pose/get?group={group}", timeout=2)
-    pose = resp.json()["pose"]
-    return pose["x"], pose["y"], pose["theta"]
-
-
-def get_localizer_image(ip: str, port: int) -> np.ndarray:
-    resp = requests.get(f"http://{ip}:{port}/camera/get", timeout=2)
-    return cv2.imdecode(np.frombuffer(resp.content, np.uint8), cv2.IMREAD_COLOR)
+def answered(call, *args):
+    """``call(*args)`` of pibot_client, again while it says None: its timeout is 1 s (it prints "Timed
+    out" and returns None), which a localizer process on a loaded machine may miss now and then."""
+    deadline = time.monotonic() + 10
+    while (answer := call(*args)) is None:
+        assert time.monotonic() < deadline, f"{call.__name__}{args}: no answer within 1 s for 10 s"
+    return answer
 
 
 class Watch:
@@ -129,16 +126,21 @@ async def test_overhead_localizer_in_a_simulated_lab(tmp_path: Path) -> None:
                     mine = local.subscribe(keys.EXTLOC_POSE, robot=a)
                     assert (await asyncio.wait_for(anext(mine), 30)).x == pytest.approx(STARTS[0][0], abs=0.01)
 
-                # The old localiser's API, as pibot_client calls it: group 1 is the first robot.
-                x, y, theta = get_localizer_pose("127.0.0.1", http_port, 1)
-                assert math.hypot(x - STARTS[0][0], y - STARTS[0][1]) < 0.01
-                assert abs(math.remainder(theta - STARTS[0][2], math.tau)) < math.radians(1.5)
-                x, _, _ = get_localizer_pose("127.0.0.1", http_port, 2)
-                assert abs(x - STARTS[1][0]) < 0.01
-                assert requests.get(f"http://127.0.0.1:{http_port}/pose/get?group=7", timeout=2).status_code == 404
-                assert requests.get(f"http://127.0.0.1:{http_port}/pose/get?group=x", timeout=2).status_code == 400
-                picture = get_localizer_image("127.0.0.1", http_port)
-                assert picture.shape == (720, 1280, 3)
+                # The old localiser's API, read by the course's own client: group 1 is the first robot,
+                # in the old square's frame (its corner at the world's (-0.5, -0.5)) and in degrees.
+                bot = localiser_client("127.0.0.1", http_port, lab.root)
+                x, y, theta = answered(bot.getLocalizerPose, 1)
+                assert math.hypot(x - (STARTS[0][0] + 0.5), y - (STARTS[0][1] + 0.5)) < 0.01, (x, y)
+                assert abs(theta - math.degrees(STARTS[0][2])) < 1.5, theta
+                x, y, theta = answered(bot.getLocalizerPose, 2)  # outside the old square: its frame still
+                assert math.hypot(x - (STARTS[1][0] + 0.5), y - (STARTS[1][1] + 0.5)) < 0.01 and abs(theta) < 1.5
+                assert answered(bot.getLocalizerPose, 7) == (0.0, 0.0, 0.0)  # no robot: zeros, no KeyError
+                for query in ("group=abc", "group=-1", "group=" + "9" * 3000, ""):
+                    answer = requests.get(f"http://127.0.0.1:{http_port}/pose/get?{query}", timeout=5)
+                    assert answer.status_code == 200 and answer.json()["pose"] == {"x": 0, "y": 0, "theta": 0}
+                    assert "group" in answer.json()["error"], answer.text
+                picture = answered(bot.getLocalizerImage)
+                assert picture.shape == (500, 500, 3)  # the old square's, 4 mm a pixel
 
                 # Forgeries: robot A's owner, on the lab router and on A's own router, every form.
                 await forge(lab, a, [a, b])
@@ -159,15 +161,21 @@ async def test_overhead_localizer_in_a_simulated_lab(tmp_path: Path) -> None:
                 await watch.until("more poses of robot A", lambda: len(watch.poses[a]) > before_a + 10)
                 late = [p for t, p in watch.poses[b] if t > gone + 0.5]
                 assert late == [], f"robot B, out of view, still got {len(late)} poses: {late[:1]}"
-                # The old API forgets a robot a second after its last pose (it was carried out a moment ago).
+                # The old API forgets a robot a second after its last pose (it was carried out a moment
+                # ago): then 0, 0, 0, as the old localiser said when it saw no robot.
                 deadline = time.monotonic() + 10
-                while requests.get(f"http://127.0.0.1:{http_port}/pose/get?group=2", timeout=2).status_code != 404:
+                while answered(bot.getLocalizerPose, 2) != (0.0, 0.0, 0.0):
                     assert time.monotonic() < deadline, "/pose/get still answers for robot B, out of view for 10 s"
                     await asyncio.sleep(0.2)
+                # Robot A is still served.
+                assert answered(bot.getLocalizerPose, 1)[0] == pytest.approx(STARTS[0][0] + 0.5, abs=0.01)
             finally:
                 watch.close()
         assert localizer.alive(), localizer.tail()
-        assert "overhead camera found from floor markers" in localizer.log.read_text()
+        log = localizer.log.read_text()
+        assert "overhead camera found from floor markers" in log
+        assert "/pose/get?group=7: no robot has group 7 (groups: 1, 2)" in log
+        assert f"/pose/get?group=2: robot {b} not seen by the overhead camera" in log
     assert lab.killed == [], "these did not stop on SIGINT"
 
 

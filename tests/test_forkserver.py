@@ -19,6 +19,7 @@ import os
 import pwd
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -59,6 +60,30 @@ def test_cgroup_v1_has_one_file_a_hierarchy_whatever_the_order_of_its_controller
         Path("/sys/fs/cgroup/systemd/system.slice/icefloe-hwbridge.service/cgroup.procs"),
         Path("/sys/fs/cgroup/unified/system.slice/icefloe-hwbridge.service/cgroup.procs"),
     ]
+
+
+NSPAWN_ON_V1 = (  # the robot in a box (systemd-nspawn) on a cgroup v1 host: the host's controllers read-only
+    "59 115 0:52 / /sys/fs/cgroup ro,nosuid,nodev,noexec shared:15 - tmpfs tmpfs ro,size=4096k\n"
+    "62 59 0:36 / /sys/fs/cgroup/pids ro,nosuid,nodev,noexec,relatime shared:18 - cgroup cgroup rw,pids\n"
+    "63 59 0:29 / /sys/fs/cgroup/cpu ro,nosuid,nodev,noexec,relatime shared:19 - cgroup cgroup rw,cpu\n"
+    "68 59 0:38 /payload /sys/fs/cgroup/unified rw,nosuid,nodev,noexec,relatime shared:24 - cgroup2 cgroup rw\n"
+    "69 59 0:37 /payload /sys/fs/cgroup/systemd rw,nosuid,nodev,noexec,relatime shared:25 - cgroup cgroup "
+    "rw,name=systemd\n"
+)
+
+
+def test_only_the_hierarchies_that_differ_are_joined_so_a_containers_read_only_ones_are_left_alone() -> None:
+    """Found in the box: the server wrote the requester's "/" into the host's read-only pids hierarchy,
+    was refused with EROFS, and every unit started without it."""
+    def cgroup(unit: str) -> str:
+        return f"9:name=systemd:/system.slice/{unit}\n8:pids:/\n1:cpu:/\n0::/system.slice/{unit}\n"
+
+    server, unit = cgroup("icefloe-forkserver.service"), cgroup("icefloe-router.service")
+    assert forkserver.cgroups_to_join(unit, server, forkserver.cgroup_mounts(NSPAWN_ON_V1)) == [
+        Path("/sys/fs/cgroup/systemd/system.slice/icefloe-router.service/cgroup.procs"),
+        Path("/sys/fs/cgroup/unified/system.slice/icefloe-router.service/cgroup.procs"),
+    ]
+    assert forkserver.cgroups_to_join(server, server, forkserver.cgroup_mounts(NSPAWN_ON_V1)) == []
 
 
 def test_a_request_that_is_not_json_is_refused() -> None:
@@ -203,6 +228,10 @@ def test_a_service_is_made_like_its_requester_and_adopted(server, open_dir: Path
         assert int(s["PPid"]) == os.getpid()   # adopted by this process, the subreaper
         title = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode().strip()
         assert title == f"{sys.executable} -m icefloe.services.info --config {cfg}"
+        # SIGINT once the service runs its loop (before, it is Python's KeyboardInterrupt: a loaded machine)
+        deadline = time.monotonic() + 60
+        while "retrying" not in (cwd / "service.log").read_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
     finally:
         os.kill(pid, signal.SIGINT)
     assert wait_gone(pid) == 0
@@ -254,12 +283,18 @@ def test_a_user_the_server_does_not_serve_is_refused(open_dir: Path) -> None:
 
 
 def test_start_runs_the_service_on_its_own_when_the_server_does_not_answer(tmp_path: Path) -> None:
-    """A unit's ExecStart with no fork server running: one line saying so, and the service runs."""
-    res = subprocess.run([sys.executable, "-m", "icefloe.forkserver", "start", "--socket", str(tmp_path / "none"),
-                          "icefloe.services.info", "--help"], capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "NOTIFY_SOCKET": str(tmp_path / "no-systemd")})
+    """A unit's ExecStart with no fork server running: one line saying so, systemd is told the unit is
+    ready (Type=notify: else the unit stays "activating", as it did in the box), and the service runs."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as systemd:
+        systemd.bind(str(tmp_path / "notify"))
+        res = subprocess.run([sys.executable, "-m", "icefloe.forkserver", "start", "--socket", str(tmp_path / "none"),
+                              "icefloe.services.info", "--help"], capture_output=True, text=True, timeout=60,
+                             env={**os.environ, "NOTIFY_SOCKET": str(tmp_path / "notify")})
+        systemd.settimeout(5)
+        told = systemd.recv(4096)
     assert res.returncode == 0 and "usage:" in res.stdout, res.stderr
     assert len(res.stderr.splitlines()) == 1 and "did not start it" in res.stderr, res.stderr
+    assert told == b"READY=1"
 
 
 def test_start_without_systemd_runs_the_service_as_python_m_would(tmp_path: Path) -> None:

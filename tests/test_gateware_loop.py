@@ -18,7 +18,7 @@ import time
 
 import pytest
 from conftest import wait_for
-from test_hwbridge_helpers import fresh, sim_state, start_stack
+from test_hwbridge_helpers import fresh, sim_state, start_stack, stood
 
 from icefloe.gateware.cxxsim import CompiledBoard
 from icefloe.schemas import keys
@@ -66,8 +66,7 @@ async def test_odometry_follows_the_truth_through_the_gateware(make_robot) -> No
         path, x = 0.0, start.x
         for v, arrived in ((0.2, lambda pose: pose.x >= 1.0), (-0.2, lambda pose: pose.x <= 0.0)):
             await _drive(node, poses, v, arrived)      # 1 m forward, then back
-            await asyncio.sleep(0.5)                   # stopped
-            truth = await sim_state(node)
+            truth = await stood(node)                  # stopped, on the truth
             pose = await fresh(poses, truth.stamp)
             assert abs(truth.x - x) > 0.95, truth      # it went 1 m
             path += abs(truth.x - x)

@@ -26,8 +26,8 @@ from icefloe.services.hwbridge import control
 from icefloe.services.hwbridge.board import Board
 from icefloe.services.hwbridge.bridge import Bridge
 from icefloe.services.hwbridge.penguinpi import OPEN_FRAMES, STOP_FRAMES, PenguinPiBoard, board_text, set_gains
-from icefloe.services.hwbridge.rt import Cycle
-from icefloe.services.hwbridge.shm import IO_LED, IO_TEXT, MSG_WARNING, Shared
+from icefloe.services.hwbridge.rt import PUBLISH_PERIODS, Cycle
+from icefloe.services.hwbridge.shm import IO_LED, IO_TEXT, MSG_WARNING, OFF_STATE_SEQ, Shared
 from icefloe.wire import penguinpi as ppi
 
 MS = 1_000_000
@@ -265,6 +265,46 @@ def test_shutdown_opens_a_lost_link_once_more_to_stop_the_board(shared) -> None:
     board.link.clear()
     cycle.shutdown()
     assert board.link == ["open", "stop", "close"]
+
+
+def test_the_state_is_written_at_once_on_news_else_every_tenth_period(shared) -> None:
+    """The cycle writes its state when the bus side has news (`rt.PUBLISH_PERIODS`): a new
+    exchange with the board, a stop (latched or the deadman), a stop confirmed, the link lost.
+    Each is in the state in the period it happened; with no news, the loop's counters still
+    come every 10th period."""
+    config = RobotConfig()
+    board = FakeBoard(config)
+    cycle = Cycle(config, shared, board)
+    t = 10**9
+
+    def period(i: int) -> None:  # what `Cycle.run` does around `step`
+        cycle.step(t + i * MS)
+        cycle.cycles += 1
+
+    def writes() -> int:
+        return shared._word(OFF_STATE_SEQ) // 2
+
+    shared.write_commands(0.2, 0.2, t, False, 0)
+    period(0)
+    assert shared.read_state()["stop_reason"] == control.STOP_NONE
+    first = writes()
+    for i in range(1, PUBLISH_PERIODS):  # the fake board exchanges nothing: no news
+        period(i)
+    assert writes() == first
+    period(PUBLISH_PERIODS)
+    assert writes() == first + 1 and shared.read_state()["cycles"] == PUBLISH_PERIODS
+    board.exchanges += 1                                 # a new encoder sample
+    period(PUBLISH_PERIODS + 1)
+    assert writes() == first + 2 and shared.read_state()["exchanges"] == 1
+    shared.write_commands(0.0, 0.0, t, True, 0, 1)       # cmd/stop latched
+    board.stop_confirmed = True
+    period(PUBLISH_PERIODS + 2)
+    state = shared.read_state()
+    assert state["stop_reason"] == control.STOP_LATCHED and state["stop_confirmed"] == 1
+    assert state["duty_left"] == state["duty_right"] == 0.0 and writes() == first + 3
+    board.fail_next = True                               # the link lost
+    period(PUBLISH_PERIODS + 3)
+    assert shared.read_state()["link_up"] == 0 and writes() == first + 4
 
 
 def test_a_stop_goes_out_between_periods_once(shared) -> None:

@@ -18,6 +18,19 @@ async def sim_state(node: Node, action: str = "read", **fields: object) -> m.Sim
     return await node.query(keys.SIM_CONTROL, m.SimControl(action=action, **fields), timeout=5.0)
 
 
+async def stood(node: Node, still_s: float = 0.2, timeout: float = 60.0) -> m.SimState:
+    """The simulator's state once the board gives zero duty and no wheel count has changed for
+    ``still_s`` of simulated time: the robot truly stands (a wall-clock sleep is not enough where
+    the simulator runs slower than real time, as the gateware's does on a busy machine)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        state = await sim_state(node)
+        if state.zero_duty_since >= 0 and state.sim_time - state.counts_changed >= still_s:
+            return state
+        assert time.monotonic() < deadline, f"the robot does not stand: {state}"
+        await asyncio.sleep(0.05)
+
+
 async def start_stack(robot: Robot, node: Node):
     """Start the simulator and hwbridge; return them once hw/wheels flows."""
     sim = robot.start("sim")

@@ -162,10 +162,19 @@ def test_a_commands_write_in_progress_leaves_the_cycle_the_last_complete_one() -
         for _ in range(1000):
             assert shared.read_commands() == (0.0, 0.0, 100, 1, 0, 1)
         assert shared.stalled_reads == 0
-        # Only a slot being rewritten under the reader on every try puts the read off.
+        # Only a slot being rewritten under the reader on every try puts the read off. A writer
+        # rewrites the published slot only after publishing a newer version (the cycle then reads
+        # that one), so a reader that holds a copy of this version keeps it: `read_commands`
+        # does not read the slot again while the version stands. One that has not read it yet
+        # must copy the slot, and gives up for now.
         published = OFF_CMD + (version % 2) * CMD_SLOT
         shared._set_word(published, shared._word(published) + 1)
-        assert shared.read_commands() is None and shared.stalled_reads == 1
+        assert shared.read_commands() == (0.0, 0.0, 100, 1, 0, 1) and shared.stalled_reads == 0
+        fresh = Shared.attach(shared.name)
+        try:
+            assert fresh.read_commands() is None and fresh.stalled_reads == 1
+        finally:
+            fresh.close()
     finally:
         shared.close()
 

@@ -36,6 +36,10 @@ OWN: dict[str, tuple[set[str], str]] = {
     "tests/test_planning_sim.py": ({"follower"}, "the follower's maths on the simulated robot"),
     "bench/record_replay.py": ({"hwbridge"}, "reads hwbridge's cycle state while recording"),
     "bench/stops.py": ({"hwbridge"}, "hwbridge's stops"),
+    "bench/timed_motion_model.py": ({"hwbridge", "webapi"}, "a timed motion: the web API's timing, hwbridge's "
+                                    "profile, slew and dither, on the firmware model"),
+    "tests/test_timed_motion.py": ({"webapi"}, "the web API's timing of a timed motion, on the simulated robot"),
+    "tests/test_timed_motion_model.py": ({"webapi"}, "the web API's timing of a timed motion, on the firmware model"),
     "tests/test_gateware_loop.py": ({"hwbridge"}, "hwbridge's cycle against the gateware"),
     "tests/test_doctor.py": ({"hwbridge"}, "the real-time state of hwbridge's cycle that the doctor reports"),
     "tests/test_camera_http.py": ({"webapi"}, "the web API's camera routes"),
@@ -44,6 +48,7 @@ OWN: dict[str, tuple[set[str], str]] = {
     "tests/test_bag.py": ({"viz"}, "viz's demo robot's messages, recorded"),
     "tests/test_bag_cli.py": ({"viz"}, "viz's demo robot recorded, and the recording viz makes of it"),
     "tests/test_security.py": ({"viz"}, "what a viz recording holds"),
+    "tests/test_lab_stop.py": ({"oled"}, "the OLED frame a held robot shows, drawn by the OLED's own screens"),
     "tests/test_viewer.py": ({"viz"}, "viz's viewer"),
     "tools/page_screenshot.py": ({"viz"}, "viz's viewer"),
 }

@@ -114,7 +114,7 @@ def test_router_load_stand_ins_carry_a_robots_keys_at_its_configured_rates_with_
     flows = {f.topic.name: f for f in lab_load.robot_flows(config)}
     assert flows["hw/wheels"].rate_hz == config.hwbridge.wheels_rate_hz
     assert flows["odom/pose"].rate_hz == config.odometry.rate_hz
-    assert flows["camera/landmarks"].rate_hz == config.camera.fps
+    assert flows["camera/landmarks"].rate_hz == config.camera.detection_hz  # every frame: fps
     assert flows["camera/image"].rate_hz == config.camera.image_rate_hz
     for name, flow in flows.items():  # each payload is a message of its key's type, as services send it
         topic = keys.TABLE[name]

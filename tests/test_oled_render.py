@@ -21,7 +21,7 @@ import pytest
 from icefloe.schemas import messages as m
 from icefloe.services.oled import font
 from icefloe.services.oled.frame import COLS, HEIGHT, ROWS, WIDTH, Frame
-from icefloe.services.oled.screens import ERRORS, SCREENS, USER, Status, render
+from icefloe.services.oled.screens import ERRORS, SCREENS, USER, Status, render, view
 from icefloe.services.oled.terminal import BOX, Terminal
 
 GOLDEN = Path(__file__).parent / "golden" / "oled"
@@ -57,6 +57,9 @@ CASES: dict[str, tuple[int, Status]] = {
     "battery-none": (2, Status()),
     "errors-none": (7, Status()),
     "network-none": (0, Status(hostname="sim")),
+    # The lab's TA holds the robot: every screen gives way to the hold's (the pose screen here).
+    "held": (8, Status(hold=m.Hold(stamp=1, held=True, since=1, reason="off the table, see me"))),
+    "held-owner-may-release": (3, Status(hold=m.Hold(stamp=1, held=True, since=1, owner_may_release=True))),
 }
 
 
@@ -82,6 +85,19 @@ def test_low_battery_inverts_every_screen(state: str) -> None:
     for i, screen in enumerate(SCREENS):
         if screen.name != "battery":  # the battery screen also spells the state out
             assert np.array_equal(render(i, status).pixels, 1 - normal[i].pixels), screen.name
+
+
+def test_a_hold_replaces_every_screen_until_it_is_released() -> None:
+    status = fixed_status()
+    normal = [render(i, status) for i in range(len(SCREENS))]
+    status.hold = m.Hold(stamp=5, held=True, since=5, reason="see me")
+    shown = {render(i, status).pack() for i in range(len(SCREENS))}
+    assert len(shown) == 1 and shown != {normal[0].pack()}
+    assert view(0, status) == view(6, status)  # one screen, whichever was chosen
+    status.hold = m.Hold(stamp=6, held=True, since=5, reason="see me")  # hwbridge's once-a-second repeat
+    assert view(0, status) == view(3, status)
+    status.hold = m.Hold(stamp=7, held=False)  # released: the screens come back
+    assert [render(i, status) for i in range(len(SCREENS))] == normal
 
 
 def test_every_screen_renders_with_no_data_at_all() -> None:
@@ -157,6 +173,7 @@ def changed(status: Status, name: str) -> Status:
         "error": None,
         "errors": 99,
         "pose": m.Pose(stamp=5, x=-1.0, y=2.5, theta=1.0),
+        "hold": m.Hold(stamp=5, held=True, since=5),
     }
     if name == "terminal":
         terminal = Terminal()
@@ -180,7 +197,7 @@ def test_a_screen_renders_again_only_when_what_it_shows_changed(index: int) -> N
         if view(index, other) == view(index, base):
             assert render(index, other) == render(index, base), (SCREENS[index].name, name)
         else:
-            assert name in SCREENS[index].reads or name == "battery", (SCREENS[index].name, name)
+            assert name in SCREENS[index].reads or name in ("battery", "hold"), (SCREENS[index].name, name)
     restamped = dataclasses.replace(base, wheels=msgspec.structs.replace(base.wheels, stamp=10**9),
                                     pose=msgspec.structs.replace(base.pose, stamp=10**9),
                                     battery=msgspec.structs.replace(base.battery, stamp=10**9))

@@ -18,6 +18,15 @@ def test_json_schemas_are_current() -> None:
     assert stale == [], f"run `icefloe schemas`: stale {stale}"
 
 
+def test_a_bound_is_written_the_same_however_a_module_spelled_it_first() -> None:
+    # typing caches Annotated[float, Meta(le=10)] and Meta(le=10.0) as one: a config field
+    # spelled 10.0 once made LabStop's schema say 10.0 when it was imported first.
+    spelled = {"maximum": 10.0, "items": [{"exclusiveMinimum": 0.0, "maximum": 0.5}], "default": 1.0}
+    assert export._whole_bounds(spelled) == {
+        "maximum": 10, "items": [{"exclusiveMinimum": 0, "maximum": 0.5}], "default": 1.0}
+    assert isinstance(export._whole_bounds(spelled)["maximum"], int)
+
+
 def test_every_message_has_a_schema_naming_its_keys() -> None:
     names = {t.__name__ for t in export.message_types()}
     for topic in keys.TABLE.values():

@@ -223,6 +223,10 @@ async def attack(matrix: Matrix, name: str, session: zenoh.Session, spare: zenoh
         session.put(form, payload, encoding=MSGPACK)
         matrix.attempt(f"{name}: delete {form}")
         session.delete(form)
+    for form in wildcard_forms(keys.key(victim, keys.CAR)):
+        payload = codec.encode(m.CarDrive(v=0.3, steer=0.001 * n()))
+        matrix.attempt(f"{name}: put {form}", payload)
+        session.put(form, payload, encoding=MSGPACK)
     for form in wildcard_forms(keys.key(victim, keys.ODOM_POSE)):
         payload = codec.encode(m.Pose(stamp=n(), x=1000.0 + n(), y=0.0, theta=0.0))
         matrix.attempt(f"{name}: put {form}", payload)

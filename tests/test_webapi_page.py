@@ -1,7 +1,7 @@
 """The robot's page at / in a real browser (Chromium, Playwright), against the simulated robot:
 real sim, hwbridge, odometry, power and webapi processes. The simulator's truth and hwbridge's
-own hw/wheels say whether the page really moved the robot and really stopped it. The old
-/speed and /settings forms are tested with a plain HTTP client."""
+own hw/wheels say whether the page really moved the robot (as a unicycle and as a car) and really
+stopped it. The old /speed and /settings forms are tested with a plain HTTP client."""
 
 from __future__ import annotations
 
@@ -113,6 +113,79 @@ async def test_the_page_shows_the_robot_and_its_pad_drives_it(robot, tmp_path):
         await until_still(node)
         assert (await sim_state(node)).theta - theta0 > 0.3, "ArrowLeft did not turn it counter-clockwise"
         await page.screenshot(path=str(tmp_path / "page.png"), full_page=True)
+
+
+async def test_as_a_car_the_pad_steers_and_the_truth_runs_on_the_cars_circle(robot, tmp_path):
+    """With "as a car" ticked, ▲ and ◀ held (the arrow keys), the steering at 0.5 rad and the speed at
+    0.3 m/s send ``cmd/car`` (no ``cmd/twist``), and the simulator's truth runs on the car's circle,
+    wheelbase / tan(0.5) = 0.2746 m, within 3 % over 2.5 rad of turn (measured 2026-12-07: -0.50 to
+    +0.39 % in six runs at load 1-2, -0.73, -0.22, +0.07 % beside six CPU hogs; the call takes 8.6 s
+    at load 1, 10 s beside six hogs, 21 s beside twelve and another checkout's tests);
+    the page shows the car's steering and its model's pose. Letting go, and unticking the box
+    while driving, each stop the wheels within the deadman."""
+    from test_hwbridge_car_sim import ARC_RAD, circle, collect, settle
+
+    from icefloe.motion.car import turn_radius
+
+    steer, speed = 0.5, 0.3
+    async with webapi(robot) as http, robot.node("tester") as node, chromium(tmp_path / "profile") as context:
+        states = node.subscribe(keys.CAR_STATE, latest=False, maxsize=10_000)
+        truth_sub = node.subscribe(keys.TRUTH, latest=False, maxsize=10_000)
+        twists = node.subscribe(keys.TWIST, latest=False)
+        await start_robot(robot, node)
+        truths: asyncio.Queue[m.Truth] = asyncio.Queue()
+        car_states: asyncio.Queue[m.CarState] = asyncio.Queue()
+        tasks = [asyncio.ensure_future(collect(truth_sub, truths)),
+                 asyncio.ensure_future(collect(states, car_states))]
+        try:
+            page = await open_page(context, http)
+            assert await page.is_hidden("#steer-box")
+            await page.check("#car-mode")
+            assert await page.is_visible("#steer-box") and "as a car" in await page.inner_text("#drive-state")
+            assert await page.get_attribute("#pad button[data-w='1']", "title") == "steer left (←)"
+            for selector, value in (("#steer", steer), ("#speed", speed)):
+                await page.eval_on_selector(selector, "(el, value) => { el.value = value; "
+                                            "el.dispatchEvent(new Event('input')); }", value)
+            assert await page.inner_text("#steer-value") == "0.50"
+            await page.keyboard.down("ArrowUp")
+            await page.keyboard.down("ArrowLeft")
+            await settle(node, car_states, steer)
+            radius, turned = await circle(truths, ARC_RAD)
+            expected = turn_radius(steer, robot.config.car.wheelbase)
+            print(f"the page as a car at {speed} m/s, steer {steer} rad: radius {radius:.4f} m vs {expected:.4f} m "
+                  f"({(radius / expected - 1) * 100:+.2f} %)")
+            assert turned > 0 and radius == pytest.approx(expected, rel=0.03)
+            await page.wait_for_function("document.getElementById('car-steer').textContent === '0.50'",
+                                         timeout=10_000)
+            assert "a circle of 0.27 m to the left" in await page.inner_text("#car-radius")
+            assert "driving as a car: v 0.30 m/s, steer 0.50 rad" in await page.inner_text("#drive-state")
+            assert await number(page, "#car-y") > 0.1, "the car model's pose is not shown"
+            assert twists.pending() == 0, "the car mode sent cmd/twist"
+            # Let go: a stop at once, well within the deadman.
+            wheels = node.subscribe(keys.WHEELS, latest=False, maxsize=10_000)
+            released = time.time_ns()
+            await page.keyboard.up("ArrowUp")
+            await page.keyboard.up("ArrowLeft")
+            assert await asyncio.wait_for(deadman_delay(wheels, released), 5) < DEADMAN
+            stopped = await until_still(node)
+            await asyncio.sleep(0.5)
+            assert (await sim_state(node)).x == pytest.approx(stopped.x, abs=0.002), "it moved after the stop"
+            await page.screenshot(path=str(tmp_path / "car.png"), full_page=True)
+            # Driving again, the box unticked: a stop (what is held was meant for the car).
+            await page.keyboard.down("ArrowUp")
+            deadline = time.monotonic() + 10
+            while abs((await sim_state(node)).speed_left) < 0.05:
+                assert time.monotonic() < deadline, "▲ did not drive the car again"
+                await asyncio.sleep(0.05)
+            unticked = time.time_ns()
+            await page.uncheck("#car-mode")
+            assert await asyncio.wait_for(deadman_delay(wheels, unticked), 5) < DEADMAN
+            assert "now driving as a unicycle" in await page.inner_text("#drive-state")
+            await page.keyboard.up("ArrowUp")
+            await until_still(node)
+        finally:
+            for task in tasks:
+                task.cancel()
 
 
 async def driving_page(context, http, node):

@@ -15,6 +15,7 @@ from webapi_helpers import TEXT, board, wait_for, webapi, webapi_robot
 
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
+from icefloe.services.webapi import timing
 
 K = 10 * math.pi * 0.065 / 384
 """m/s per firmware demand unit with the sim robot's geometry."""
@@ -127,8 +128,11 @@ async def test_timed_motion_blocks_until_the_robot_has_stopped(robot):
         answered = time.monotonic()
         assert (status, ctype) == (200, TEXT), body
         (motion,) = b.motions
+        # held for T' (the run-on taken off: services/webapi/timing.py), ramped as asked
+        held = timing.timed_duration(20, 20, 0.6, 0.2, unit=K, max_speed=0.5, max_accel=2.0)
+        assert held < 0.6
         assert (motion.left, motion.right, motion.duration, motion.accel) == (
-            pytest.approx(20 * K), pytest.approx(20 * K), 0.6, 0.2)
+            pytest.approx(20 * K), pytest.approx(20 * K), pytest.approx(held), 0.2)
         assert motion.sender and motion.seq > 0  # numbered and stamped, as every command
         assert b.motion_done_at and b.motion_done_at[0] <= answered  # the reply came after the end
         assert json.loads(body)["encoder"] == {"left": 0, "right": 0}
@@ -136,7 +140,9 @@ async def test_timed_motion_blocks_until_the_robot_has_stopped(robot):
         status, _, _ = await http.get("/robot/set/velocity", value="10,-10", time="0.3",
                                       acceleration="0.1")
         assert status == 200
-        assert b.motions[-1].accel == 0.1 and b.motions[-1].duration == 0.3
+        assert b.motions[-1].accel == 0.1
+        assert b.motions[-1].duration == pytest.approx(
+            timing.timed_duration(10, -10, 0.3, 0.1, unit=K, max_speed=0.5, max_accel=2.0))
 
 
 async def test_resets(robot):

@@ -197,7 +197,8 @@ def test_installed_anywhere_it_runs_the_simulated_robot_and_a_viewer(installed: 
 
     # A robot installed from the wheel: its units run /opt/icefloe/venv (icefloe/deploy.py), not a home.
     plan = installed.run("python", "-m", "icefloe.deploy", "install", "penguin1", "--dry-run").stdout
-    exec_start = "ExecStart=/opt/icefloe/venv/bin/python -m icefloe.services.hwbridge --config /etc/icefloe/robots/"
+    exec_start = ("ExecStart=/opt/icefloe/venv/bin/python -m icefloe.forkserver start --socket "
+                  "/run/icefloe/forkserver.sock icefloe.services.hwbridge --config /etc/icefloe/robots/")
     assert exec_start in plan, plan
 
     # The user's own sim.toml overrides the shipped one by name; it extends the shipped one.

@@ -209,6 +209,25 @@ class Board:
             self.ready.set()
 
 
+async def sim_state(node: Node) -> m.SimState:
+    """The simulator's state (``sim/control`` read)."""
+    return await node.query(keys.SIM_CONTROL, m.SimControl(action="read"), timeout=5.0)
+
+
+async def still(node: Node) -> m.SimState:
+    """The simulator's state once both wheels have stopped turning, and still do 0.2 s later
+    (within 30 s)."""
+    for _ in range(300):
+        state = await sim_state(node)
+        if abs(state.speed_left) + abs(state.speed_right) < 1e-4:
+            await asyncio.sleep(0.2)
+            again = await sim_state(node)
+            if abs(again.speed_left) + abs(again.speed_right) < 1e-4:
+                return again
+        await asyncio.sleep(0.1)
+    raise AssertionError(f"the wheels still turn: {state}")
+
+
 @contextlib.asynccontextmanager
 async def board(robot: Robot) -> Any:
     """A running `Board` on ``robot``'s bus."""

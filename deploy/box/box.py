@@ -1,8 +1,9 @@
 """The robot in a box: a fresh Debian bookworm booted with systemd-nspawn, installed as a TA would.
 
     deploy/box.sh [up]            build the root once (cached), boot a fresh copy, install penguin1 as pi
+                                  (in a memory limit the size of a Raspberry Pi 3B's: --memory MIB)
     deploy/box.sh exec [--user pi] -- CMD...   run a command in the box
-    deploy/box.sh board pose|unplug|plug       the board outside the box (pose: the simulator's truth)
+    deploy/box.sh board pose|unplug|plug|stopped   the board outside the box (pose: the simulator's truth)
     deploy/box.sh reboot | down               reboot the box | power it off and throw it away
 
 The root (`build`) is made once with debootstrap from Debian's packages and kept in a cache outside
@@ -16,8 +17,10 @@ group and mode the install's udev rule gives the Pi's UART (the box has no udev)
 the simulator's truth stay outside, as the floor does for a real robot: `board pose` reads them.
 
 What a Raspberry Pi has and the box lacks is said explicitly, in the install's own flags (docs/box.md):
-``./deploy/up.sh penguin1 --install --no-boot-config``. Box infrastructure, not the robot's: pi's
-passwordless sudo (the TA typing a password), a pip and an apt cache bound from the host.
+``./deploy/up.sh penguin1 --install --no-boot-config --wheelhouse=/var/cache/icefloe-box/wheels``, the
+wheelhouse being the lock's files for the box's machine, downloaded here once per lock (`wheelhouse`).
+Box infrastructure, not the robot's: pi's passwordless sudo (the TA typing a password), a pip and an apt
+cache bound from the host.
 """
 
 from __future__ import annotations
@@ -56,8 +59,13 @@ READY = ".icefloe-box-ready"
 """Marker file in a finished cached root (a root half made by an interrupted build has none)."""
 BOX_PIP = "/var/cache/icefloe-box/pip"
 BOX_WHEELS = "/var/cache/icefloe-box/wheels"
-EXTRAS = ("viz", "robot")
-"""The extras of the README's command and of the robot install: their wheels are kept (`wheelhouse`)."""
+LOCKED = ("build", "planner", "viz", "robot")
+"""The lock's exports whose files the box's wheelhouse holds: what the README's command (build, viz) and the
+robot install (build, planner, robot) take from the lock (`wheelhouse`)."""
+BOX_PYTHON = "3.11"
+"""Bookworm's Python: the box's, and a Raspberry Pi OS robot's (the wheelhouse holds its wheels)."""
+MACHINE = {"amd64": "x86_64", "arm64": "aarch64"}
+"""Debian's name of an architecture -> the machine the lock's markers name (``platform_machine``)."""
 BOX_APT = "/var/cache/apt/archives"
 BOARD_CONFIG = "sim"
 """The simulated robot's config gives the board model (penguin1 extends it: the same geometry)."""
@@ -70,11 +78,6 @@ EMULATED = {"arm64": "aarch64"}
 """A box of this architecture runs its programs under qemu's user emulation (binfmt_misc: qemu-<name>)."""
 SLOWER = {"arm64": 10.0}
 """How much longer the box's own waits (boot, reboot) are under emulation (docs/box.md: measured)."""
-PIP_TARGET = {"arm64": [*(f"--platform=manylinux_2_{m}_aarch64" for m in range(36, 16, -1)),
-                        "--platform=manylinux2014_aarch64", "--python-version=3.11", "--implementation=cp",
-                        "--abi=cp311", "--only-binary=:all:"]}
-"""pip download's target for a foreign box: bookworm's Python 3.11 and glibc 2.36 (pip does not widen
-manylinux_2_36 to the older glibc tags itself), wheels only (nothing is built for another machine)."""
 
 
 def say(msg: str) -> None:
@@ -176,34 +179,76 @@ def build(cache: Path, arch: str, rebuild: bool = False) -> Path:
     return root
 
 
-def wheelhouse(repo: Path, folder: Path, arch: str = "amd64") -> None:
-    """The wheels of icefloe's dependencies (with `EXTRAS`), downloaded here once per pyproject.toml.
-
-    pip's own HTTP cache (bound as well) saves nothing where a proxy marks PyPI's answers
-    no-store, as on the machine this was made on; pip in the box still asks PyPI which versions
-    exist, and takes a file from here (find-links) when it is the one it would have downloaded.
-    """
+def locked_pins(repo: Path, rev: str, arch: str) -> tuple[dict, str]:
+    """The lock's pins for a box of ``arch`` (`LOCKED`: what its installs take), read from ``rev`` of
+    ``repo`` (the commit the box clones, not the working tree), and a digest of those exports."""
     import hashlib
-    import tomllib
+    import tempfile
 
-    pyproject = (repo / "pyproject.toml").read_bytes()
-    stamp = folder / f".stamp-{hashlib.sha256(pyproject).hexdigest()[:16]}"
+    from icefloe import lock
+
+    digest = hashlib.sha256(f"{arch} {BOX_PYTHON}".encode())
+    with tempfile.TemporaryDirectory(prefix="icefloe-box-lock-") as tmp:
+        for name in LOCKED:
+            path = f"deploy/requirements/{name}.txt"
+            r = subprocess.run(["git", "-C", str(repo), "show", f"{rev}:{path}"], capture_output=True, text=True)
+            if r.returncode != 0:
+                raise BoxError(f"{repo} at {rev}: no {path} (the lock's export; tools/lock.py makes it): "
+                               f"{r.stderr.strip()}")
+            (Path(tmp) / f"{name}.txt").write_text(r.stdout)
+            digest.update(r.stdout.encode())
+        environment = lock.environment(MACHINE[arch], BOX_PYTHON)
+        try:
+            return lock.pins(LOCKED, environment=environment, directory=Path(tmp)), digest.hexdigest()[:16]
+        except lock.LockError as exc:
+            raise BoxError(f"{repo} at {rev}: {exc}") from None
+
+
+def pip_target(arch: str) -> list[str]:
+    """pip download's options for a box of ``arch``: bookworm's CPython 3.11 and glibc 2.36 (pip does not
+    widen manylinux_2_36 to the older glibc tags itself), wheels only (the box has no compiler), whatever
+    Python and machine this is."""
+    machine = MACHINE[arch]
+    return [*(f"--platform=manylinux_2_{m}_{machine}" for m in range(36, 16, -1)),
+            f"--platform=manylinux2014_{machine}", f"--python-version={BOX_PYTHON}", "--implementation=cp",
+            f"--abi=cp{BOX_PYTHON.replace('.', '')}", "--only-binary=:all:"]
+
+
+def wheelhouse(repo: Path, folder: Path, arch: str = "amd64", rev: str = "HEAD") -> None:
+    """The lock's files for a box of ``arch``, downloaded once per lock into ``folder`` (docs/box.md).
+
+    Exactly the lock's: each pin of `LOCKED` with its hashes, ``pip download --no-deps
+    --require-hashes`` (pip checks every file's sha256), then checked as the robot install checks a
+    wheelhouse (`icefloe.lock.wheelhouse_problems`); a file of an older lock is removed. A wheelhouse
+    that does not match is an error naming what is missing.
+    """
+    from icefloe import lock
+
+    locked, digest = locked_pins(repo, rev, arch)
+    stamp = folder / f".stamp-{digest}"
     if stamp.exists():
         return
-    project = tomllib.loads(pyproject.decode())["project"]
-    wanted = [*project["dependencies"], *(d for e in EXTRAS for d in project["optional-dependencies"][e]),
-              "setuptools>=69", "pip", "wheel"]
     folder.mkdir(parents=True, exist_ok=True)
-    say(f"downloading the wheels icefloe needs into {folder} (once per pyproject.toml)")
-    r = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--dest", str(folder),
-                        *PIP_TARGET.get(arch, []), *wanted],
-                       capture_output=True, text=True)
-    if r.returncode != 0:  # not fatal: pip in the box downloads what is missing
-        say(f"could not fill the wheelhouse: {r.stderr.strip().splitlines()[-1:]}")
-        return
+    say(f"downloading the lock's {len(locked)} packages for {arch} into {folder} (once per lock)")
+    start = time.monotonic()
+    pinned = folder / ".requirements.txt"
+    pinned.write_text("".join(pin.requirement() + "\n" for _, pin in sorted(locked.items())))
+    r = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--require-hashes",
+                        "--dest", str(folder), *pip_target(arch), "-r", str(pinned)], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise BoxError(f"pip could not download the lock's files into {folder}: "
+                       + " ".join(r.stderr.strip().splitlines()[-3:]))
+    allowed = set().union(*(pin.hashes for pin in locked.values()))
+    for f in folder.iterdir():
+        if f.is_file() and not f.name.startswith(".") and lock.sha256(f) not in allowed:
+            f.unlink()  # another lock's file: the box takes the lock's only
+    problems = lock.wheelhouse_problems(folder, locked)
+    if problems:
+        raise BoxError(f"the wheelhouse {folder} does not match the lock after pip's download: " + "; ".join(problems))
     for old in folder.glob(".stamp-*"):
         old.unlink()
     stamp.touch()
+    say(f"wheelhouse ready in {time.monotonic() - start:.0f} s: {len(locked)} packages as locked")
 
 
 # ---------------------------------------------------------------------------------------- state
@@ -324,11 +369,74 @@ class Board:
         x, y, theta = self.sim.world.pose
         return f"{x:.6f} {y:.6f} {theta:.6f}"
 
+    def stopped(self) -> str:
+        """Since when both wheels' duty has been zero, on this machine's ``time.monotonic()`` clock
+        (a test outside the box times a stop with it), or ``moving``."""
+        world = self.sim.world
+        now, since = time.monotonic(), world.zero_duty_since
+        if since < 0:
+            return "moving"
+        return f"{now - (world.time - since):.6f}"  # the simulator's clock runs at the real rate
+
     def close(self) -> None:
         self.sim.close()
 
 
 # ---------------------------------------------------------------------------------------- supervisor
+
+PI3B_MEMORY_MIB = 925
+"""What a Raspberry Pi 3B's Linux has of its 1 GB, the GPU's share taken out: `free -m`'s total on a
+Pi 3 Model B (andythemoron.com/blog/2017-04-23/Understanding-Linux-Memory-Usage). The box (its own
+systemd, the robot and a student's programs) gets this much, as a cgroup's limit (docs/box.md)."""
+
+
+def memory_group(name: str) -> tuple[Path, str]:
+    """The box's memory cgroup (cgroup v1's memory controller, as on this machine, or v2's) and its
+    limit's file. BoxError in one line when this machine has neither."""
+    v1, v2 = Path("/sys/fs/cgroup/memory"), Path("/sys/fs/cgroup")
+    if (v1 / "cgroup.procs").exists():
+        return v1 / f"icefloe-box-{name}", "memory.limit_in_bytes"
+    if (v2 / "cgroup.controllers").exists() and "memory" in (v2 / "cgroup.controllers").read_text().split():
+        return v2 / f"icefloe-box-{name}", "memory.max"
+    raise BoxError("this machine has no memory cgroup controller to limit the box with (--memory 0 boots "
+                   "it without a limit)")
+
+
+def memory_cgroup(name: str, mib: int) -> Path:
+    """The box's memory cgroup, made with a limit of ``mib`` MiB; its ``cgroup.procs``."""
+    group, limit_file = memory_group(name)
+    try:
+        if limit_file == "memory.max":
+            with contextlib.suppress(OSError):
+                (group.parent / "cgroup.subtree_control").write_text("+memory")
+        group.mkdir(exist_ok=True)
+        (group / limit_file).write_text(str(mib << 20))
+    except OSError as exc:
+        raise BoxError(f"cannot limit the box's memory to {mib} MiB in {group}: {exc} (--memory 0 boots it "
+                       "without a limit)") from None
+    return group / "cgroup.procs"
+
+
+def box_cgroup(state: State) -> Path | None:
+    """The ``cgroup.procs`` of the running box's memory limit, if it has one: what runs in the box from
+    outside (`inside`: the install, a student's programs) joins it, as the box's own processes are in it."""
+    if not state.read().get("memory"):
+        return None
+    procs = memory_group(state.read().get("name", ""))[0] / "cgroup.procs"
+    return procs if procs.exists() else None
+
+
+BOARD_NICE = -10
+"""The supervisor's (the board's) nice value on this machine; the box runs at 0."""
+
+
+def in_cgroup(procs: Path | None, command: list[str]) -> list[str]:
+    """``command`` at nice 0 (the supervisor runs at `BOARD_NICE`), started inside the cgroup whose
+    ``cgroup.procs`` is ``procs`` if one is given (before it runs: its every child is then in it too)."""
+    join = f"echo $$ > {shlex.quote(str(procs))} && " if procs is not None else ""
+    back = -os.getpriority(os.PRIO_PROCESS, 0)
+    return ["sh", "-c", f'{join}exec nice -n {back} "$@"', "sh", *command]
+
 
 def nspawn_command(state: State, cache: Path, name: str) -> list[str]:
     return ["systemd-nspawn", "--register=no", "--keep-unit", "--boot", f"--machine={name}",
@@ -368,6 +476,11 @@ class Supervisor:
         self.boots = 0
 
     def serve(self) -> int:
+        # The board is a chip of its own on a robot: here it shares the CPUs with the box, so it runs
+        # ahead of the box's programs (a student's busy loops would slow the simulated firmware down,
+        # which no real board suffers); the box itself is put back to nice 0 (`in_cgroup`).
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, 0, BOARD_NICE)
         with contextlib.suppress(FileNotFoundError):
             self.state.sock.unlink()
         server = socket.socket(socket.AF_UNIX)
@@ -392,7 +505,9 @@ class Supervisor:
 
     def _boot_once(self) -> int:
         with self.state.console.open("ab") as console:
-            self.nspawn = subprocess.Popen(nspawn_command(self.state, self.cache, self.name),
+            mib = self.state.read().get("memory", 0)
+            procs = memory_cgroup(self.name, mib) if mib else None
+            self.nspawn = subprocess.Popen(in_cgroup(procs, nspawn_command(self.state, self.cache, self.name)),
                                            stdin=subprocess.DEVNULL, stdout=console, stderr=console)
             try:
                 leader = container_init(self.nspawn.pid, 60 * slower(self.state))
@@ -435,7 +550,8 @@ class Supervisor:
                     conn.sendall(reply.encode() + b"\n")
 
     def handle(self, words: list[str]) -> str:
-        """``pose`` (x y theta, m and rad: the simulator's truth), ``unplug``, ``plug``, ``stop``."""
+        """``pose`` (x y theta, m and rad: the simulator's truth), ``unplug``, ``plug``, ``stopped``
+        (since when both wheels' duty is zero), ``stop`` (the box)."""
         match words:
             case ["pose"]:
                 return self.board.pose()
@@ -444,10 +560,12 @@ class Supervisor:
                 return "unplugged"
             case ["plug"]:
                 return "plugged " + self.board.plug(self.state.read()["leader"])
+            case ["stopped"]:
+                return self.board.stopped()
             case ["stop"]:
                 self.stop()
                 return "stopping"
-        return f"error unknown request {' '.join(words)!r}: pose, unplug, plug, stop"
+        return f"error unknown request {' '.join(words)!r}: pose, unplug, plug, stopped, stop"
 
 
 # ---------------------------------------------------------------------------------------- commands
@@ -467,6 +585,8 @@ def inside(state: State, command: str, user: str = "root", check: bool = False,
     login = ["runuser", "-l", user, "-c", command] if user != "root" else ["bash", "-lc", command]
     argv = ["nsenter", f"--target={leader}", "--mount", "--uts", "--ipc", "--pid", "--",
             "env", "-i", f"PATH={PATH}", "LANG=C.UTF-8", "TERM=dumb", *login]
+    if (procs := box_cgroup(state)) is not None:
+        argv = ["sh", "-c", f'echo $$ > {shlex.quote(str(procs))} && exec "$@"', "sh", *argv]
     result = subprocess.run(argv, text=True, capture_output=capture, timeout=timeout, check=False)
     if check and result.returncode != 0:
         detail = f": {(result.stderr or result.stdout).strip()[-2000:]}" if capture else ""
@@ -534,7 +654,7 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
                        f"this machine's network: stop what uses it (a robot running here?) and try again")
     emulation(args.arch, setuid=True)
     lower = build(args.cache, args.arch)
-    wheelhouse(args.repo, wheels_dir(args.cache, args.arch), args.arch)
+    wheelhouse(args.repo, wheels_dir(args.cache, args.arch), args.arch, args.rev)
     shutil.rmtree(state.dir, ignore_errors=True)
     state.dir.mkdir(parents=True, mode=0o700)
     for cache in ("pip", "apt", "wheels"):
@@ -564,6 +684,7 @@ def cmd_up(args: argparse.Namespace, state: State) -> int:
     if r.returncode != 0:
         raise BoxError(f"cannot bundle {args.repo} at {args.rev}: {r.stderr.strip()}")
     state.write(name=args.name, cache=str(args.cache), arch=args.arch, robot=args.robot, running=False,
+                memory=args.memory,
                 rev=subprocess.run(["git", "-C", str(args.repo), "rev-parse", args.rev],
                                    capture_output=True, text=True).stdout.strip())
     start = time.monotonic()
@@ -597,8 +718,9 @@ def make_pi(state: State) -> None:
     say("user pi (home 0700, sudo) with the repository in /home/pi/icefloe")
 
 
-INSTALL = "./deploy/up.sh {robot} --install --no-boot-config"
-"""The install as the TA runs it on a Pi, with the box's explicit differences (docs/box.md)."""
+INSTALL = f"./deploy/up.sh {{robot}} --install --no-boot-config --wheelhouse={BOX_WHEELS}"
+"""The install as the TA runs it on a Pi, with the box's explicit differences (docs/box.md), from the box's
+wheelhouse: the lock's files only, nothing downloaded (the install refuses a wheelhouse that is not the lock's)."""
 
 
 def install(state: State, robot: str) -> None:
@@ -638,6 +760,9 @@ def cmd_down(state: State) -> int:
             raise BoxError(f"the box did not power off within {60 * slower(state):.0f} s: see {state.console}")
     if os.path.ismount(state.root):
         subprocess.run(["umount", str(state.root)], check=False)
+    if info.get("memory"):
+        with contextlib.suppress(OSError, BoxError):  # empty once the box is off
+            memory_group(info.get("name", ""))[0].rmdir()
     shutil.rmtree(state.dir, ignore_errors=True)
     say(f"box in {state.dir} powered off and removed")
     return 0
@@ -673,6 +798,9 @@ def main(argv: list[str] | None = None) -> int:
     up.add_argument("--rev", default="HEAD", help="its commit to clone (default HEAD: committed work only)")
     up.add_argument("--robot", default="penguin1", help="the robot config to install (default penguin1)")
     up.add_argument("--no-install", action="store_true", help="stop after making pi and cloning the repository")
+    up.add_argument("--memory", type=int, default=PI3B_MEMORY_MIB, metavar="MIB",
+                    help=f"the box's memory limit, MiB (default {PI3B_MEMORY_MIB}: what a Raspberry Pi 3B has; "
+                         "0: none)")
     sub.add_parser("build", help="make the cached root and the wheelhouse (if missing)").add_argument(
         "--rebuild", action="store_true", help="make the root again even if it exists")
     inst = sub.add_parser("install", help="run the install as pi again")
@@ -681,8 +809,10 @@ def main(argv: list[str] | None = None) -> int:
     ex.add_argument("--user", default="root", help="as this user, in a login shell (default root)")
     ex.add_argument("cmd", nargs=argparse.REMAINDER, help="the command (after --)")
     bd = sub.add_parser("board", help="the board outside the box")
-    bd.add_argument("action", choices=["pose", "unplug", "plug"],
-                    help="pose: the simulator's truth (x y theta, m, rad); unplug/plug the serial line")
+    bd.add_argument("action", choices=["pose", "unplug", "plug", "stopped"],
+                    help="pose: the simulator's truth (x y theta, m, rad); unplug/plug the serial line; "
+                         "stopped: since when both wheels' duty is zero (this machine's monotonic clock, s) or "
+                         "'moving'")
     sub.add_parser("reboot", help="reboot the box (systemctl reboot inside) and wait until it is up")
     sub.add_parser("down", help="power the box off and throw its copy away")
     sub.add_parser("serve", help=argparse.SUPPRESS)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
@@ -42,7 +43,8 @@ SCHEMA_PREFIX = "icefloe."
 IMAGE_SCHEMA = "foxglove.CompressedImage"
 JSONSCHEMA = "jsonschema"
 
-Form = Literal["typed", "image", "raw"]
+Form = Literal["typed", "image", "raw", "ros2"]
+"""``ros2``: a ROS 2 topic (CDR) that replay turns back into an icefloe key's messages (`ros2.Ros2Replay`)."""
 
 
 class FoxgloveTime(msgspec.Struct, frozen=True):
@@ -211,6 +213,8 @@ class ChannelPlan:
     note: str = ""
     """Why the channel is replayed as raw bytes, or refused."""
     refused: bool = False
+    convert: Callable[[bytes], m.Message] | None = None
+    """A ``ros2`` channel's message data to the icefloe message (ValueError naming what is wrong)."""
 
 
 def bus_key(topic: str, robot: str | None = None) -> str:
@@ -271,6 +275,9 @@ def decode(channel: ChannelPlan, data: bytes) -> m.Message | None:
             stamp = image.timestamp.sec * 1_000_000_000 + image.timestamp.nsec
             return m.Image(stamp=stamp, width=image.width, height=image.height, data=image.data,
                            format=image.format)  # type: ignore[arg-type]
+        if channel.form == "ros2":
+            assert channel.convert is not None
+            return channel.convert(data)
     except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
         raise BadRecording(f"{channel.topic}: a message does not decode: {exc}") from None
     return None

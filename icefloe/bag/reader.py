@@ -14,17 +14,20 @@ import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Metadata, Schema
+from mcap.records import Channel, Chunk, Header, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 
 from ..errors import BadRecording, IcefloeError
 from .channels import ChannelPlan, plan
+
+if TYPE_CHECKING:
+    from .ros2 import Ros2Replay
 
 MAGIC = b"\x89MCAP0\r\n"
 log = logging.getLogger("icefloe.bag")
@@ -52,6 +55,8 @@ class FileState:
     whole: bool = True
     """False: truncated; read up to its last whole chunk."""
     compression: str = ""
+    profile: str = ""
+    """The MCAP header's profile (``ros2``: a ROS 2 recording)."""
     chunks: int = 0
     metadata: dict[str, dict[str, str]] | None = None
 
@@ -59,21 +64,25 @@ class FileState:
 class Bag:
     """A recording: one or more MCAP files (a split recording), read in the order given.
 
-    ``robot``: replay under this robot name (see `channels.bus_key`).
+    ``robot``: replay under this robot name (see `channels.bus_key`). ``ros2``: which ROS 2 topics
+    (``ros2msg`` schemas, CDR) go back onto which icefloe keys; without it they are raw bytes. A
+    rosbag2 folder (``metadata.yaml`` beside its ``.mcap`` files) stands for its files, in order.
     """
 
-    def __init__(self, paths: Sequence[str | os.PathLike[str]], robot: str | None = None) -> None:
+    def __init__(self, paths: Sequence[str | os.PathLike[str]], robot: str | None = None,
+                 ros2: Ros2Replay | None = None) -> None:
         if not paths:
             raise BadRecording("no recording given")
         if robot is not None and (not robot or any(c in robot for c in "/*$#? ")):
             # The name goes into the keys replay publishes on: a wildcard would reach every robot.
             raise IcefloeError(f"--robot {robot!r} is not a robot name (one word, no wildcards)")
-        self.files = [FileState(Path(p), 0) for p in paths]
+        self.files = [FileState(p, 0) for p in _files(paths)]
         self.robot = robot
+        self.ros2 = ros2
         self._plans: dict[tuple[Path, int], ChannelPlan] = {}
         self._warned: set[Path] = set()
         for state in self.files:
-            state.size, state.whole = _check(state.path)
+            state.size, state.whole, state.profile = _check(state.path)
 
     # ------------------------------------------------------------------ reading
 
@@ -119,8 +128,12 @@ class Bag:
     def _plan(self, path: Path, schema: Schema | None, channel: Channel) -> ChannelPlan:
         found = self._plans.get((path, channel.id))
         if found is None:
-            found = plan(channel.topic, schema.name if schema else "", schema.encoding if schema else "",
-                         channel.message_encoding, dict(channel.metadata), self.robot)
+            if self.ros2 is not None and schema is not None and schema.encoding == "ros2msg" \
+                    and channel.message_encoding == "cdr":
+                found = self.ros2.plan(channel.topic, schema.name, self.robot)
+            if found is None:  # not a ROS 2 topic replay turns back
+                found = plan(channel.topic, schema.name if schema else "", schema.encoding if schema else "",
+                             channel.message_encoding, dict(channel.metadata), self.robot)
             self._plans[(path, channel.id)] = found
         return found
 
@@ -194,8 +207,22 @@ def _summary(state: FileState, f: IO[bytes]) -> Summary | None:
         raise BadRecording(f"{state.path}: bad summary section: {exc}") from None
 
 
-def _check(path: Path) -> tuple[int, bool]:
-    """(size, whole) of a file; BadRecording if it is missing or not MCAP."""
+def _files(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
+    """The files of a recording: a rosbag2 folder (with ``metadata.yaml``) stands for its .mcap files."""
+    out = []
+    for given in map(Path, paths):
+        if given.is_dir() and (given / "metadata.yaml").is_file():
+            found = sorted(given.glob("*.mcap"), key=lambda p: (len(p.name), p.name))  # run_2 before run_10
+            if not found:
+                raise BadRecording(f"{given}: a rosbag2 folder with no .mcap file")
+            out += found
+        else:
+            out.append(given)
+    return out
+
+
+def _check(path: Path) -> tuple[int, bool, str]:
+    """(size, whole, profile) of a file; BadRecording if it is missing or not MCAP."""
     try:
         size = path.stat().st_size
         with open(path, "rb") as f:
@@ -209,4 +236,17 @@ def _check(path: Path) -> tuple[int, bool]:
         raise BadRecording(f"{path}: {exc.strerror or exc}") from None
     if head != MAGIC:
         raise BadRecording(f"{path}: not an MCAP file (it starts with {head!r})")
-    return size, tail == MAGIC
+    return size, tail == MAGIC, _profile(path)
+
+
+def _profile(path: Path) -> str:
+    """The profile of the file's header record; BadRecording if it has none (cut off before it)."""
+    with open(path, "rb") as f:
+        try:
+            header = next(StreamReader(f).records)
+        except Exception as exc:  # EOF, a bad length: cut off inside its first record
+            raise BadRecording(f"{path}: no MCAP header (truncated after {f.tell()} bytes?): "
+                               f"{exc or type(exc).__name__}") from None
+    if not isinstance(header, Header):
+        raise BadRecording(f"{path}: its first record is not an MCAP header but a {type(header).__name__}")
+    return header.profile

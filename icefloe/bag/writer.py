@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from importlib import metadata as package_metadata
 from pathlib import Path
 from typing import IO
@@ -41,7 +41,13 @@ def library() -> str:
 
 
 class BagWriter:
-    """Writes bus samples to an MCAP file (or numbered files of at most ``max_size`` bytes)."""
+    """Writes bus samples to an MCAP file (or numbered files of at most ``max_size`` bytes).
+
+    A subclass writes another form (`ros2.Ros2BagWriter`: ROS 2's) by overriding `samples` (what a
+    bus sample becomes in the file), `part_path`, `profile` and `before_finish`."""
+
+    profile = ""
+    """The MCAP header's profile ("": none of the well-known ones)."""
 
     def __init__(self, path: str | os.PathLike[str], *, compression: str = "zstd", max_size: int = 0,
                  metadata: dict[str, str] | None = None, chunk_seconds: float = CHUNK_SECONDS,
@@ -71,16 +77,28 @@ class BagWriter:
 
     def write(self, key: str, payload: bytes, encoding: str, log_time: int) -> None:
         """Record one sample received at ``log_time`` (ns since the epoch)."""
-        spec, data, stamp = self._transcoder.encode(key, payload, encoding)
         writer = self._writer
         assert writer is not None, "write after close"
-        channel_id = self._channels.get(spec)
-        if channel_id is None:
-            channel_id = self._channels[spec] = self._register(writer, spec)
-        writer.add_message(channel_id, log_time=log_time, data=data,
-                           publish_time=stamp if stamp is not None else log_time)
-        self.messages += 1
+        for spec, data, stamp in self.samples(key, payload, encoding):
+            channel_id = self._channels.get(spec)
+            if channel_id is None:
+                channel_id = self._channels[spec] = self._register(writer, spec)
+            writer.add_message(channel_id, log_time=log_time, data=data,
+                               publish_time=stamp if stamp is not None else log_time)
+            self.messages += 1
         self.flush_if_due()
+
+    def samples(self, key: str, payload: bytes, encoding: str) -> Iterable[tuple[ChannelSpec, bytes, int | None]]:
+        """What one bus sample becomes in the file: (channel, message data, its own stamp or None), none
+        or several."""
+        return (self._transcoder.encode(key, payload, encoding),)
+
+    def part_path(self, index: int) -> Path:
+        """The file of part ``index`` of a split recording (``max_size``)."""
+        return self.path.with_name(f"{self.path.stem}_{index:03d}{self.path.suffix}")
+
+    def before_finish(self, writer: Writer) -> None:
+        """Called before a file's summary is written: records that go at its end."""
 
     def flush_if_due(self) -> None:
         """`flush` if the chunk being filled is `chunk_seconds` old (call it now and then when idle)."""
@@ -114,12 +132,10 @@ class BagWriter:
         return writer.register_channel(spec.topic, spec.message_encoding, schema_id, spec.metadata)
 
     def _open_next(self) -> None:
-        path = self.path
-        if self.max_size:
-            path = self.path.with_name(f"{self.path.stem}_{len(self.files):03d}{self.path.suffix}")
+        path = self.part_path(len(self.files)) if self.max_size else self.path
         self._stream = open(path, "wb")  # noqa: SIM115 - closed in _finish
         self._writer = Writer(self._stream, chunk_size=CHUNK_SIZE, compression=self.compression)
-        self._writer.start(profile="", library=library())
+        self._writer.start(profile=self.profile, library=library())
         self._writer.add_metadata("icefloe", {**self.metadata, "part": str(len(self.files))})
         self._stream.flush()  # a file killed in its first second is still an (empty) MCAP file
         self._schemas.clear()
@@ -131,6 +147,7 @@ class BagWriter:
         assert writer is not None and stream is not None
         self._writer = self._stream = None  # closed, even if the disk refuses the summary
         try:
+            self.before_finish(writer)
             writer.finish()
             self._closed_bytes += stream.tell()
         finally:

@@ -5,6 +5,7 @@
     bus.py         status, echo, hz, pub, query        listen and talk to the bus
     introspect.py  topics, info, services              what is on the bus, who declares it
     teleop.py      teleop                              drive from the keyboard
+    lab.py         lab stop, lab release               the lab's emergency stop (its TA's)
     schemas.py     schemas                             the JSON Schemas of the messages
     record.py      record, replay, bag, export         recordings: MCAP files, played back onto the bus
     viz.py         viz                                 the Rerun view of robots (live, or from a recording)
@@ -33,8 +34,8 @@ import argcomplete
 
 from ..errors import EXIT_CONFIG, ConfigError, IcefloeError
 
-VERB_MODULES = ("robot", "bus", "introspect", "teleop", "record", "viz", "schemas", "gateware", "snapshot", "calibrate",
-                "extloc", "score", "grid", "sim", "scaffold", "doctor", "completion")
+VERB_MODULES = ("robot", "bus", "introspect", "teleop", "lab", "record", "viz", "schemas", "gateware", "snapshot",
+                "calibrate", "extloc", "score", "grid", "sim", "scaffold", "doctor", "completion")
 """The verb modules of this package, in the order `icefloe --help` lists their verbs."""
 
 EPILOG = """\

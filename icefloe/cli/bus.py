@@ -63,6 +63,8 @@ async def look_before_listening(node: Node, key: str, typed: str, robot: str) ->
     me = str(node.session.info.zid())  # our own session declares a publisher on `log`
     if bus.routers and not [zid for zid in bus.on(key, "publisher") if zid != me]:
         warn(f"no publisher is declared on {key} now (`icefloe topics` lists what is published)")
+    if sys.stderr.isatty():  # someone at a terminal: a quiet key (log on a robot at rest) prints nothing for long
+        warn(f"listening on {key} (Ctrl-C stops)")
 
 
 async def status(args: argparse.Namespace, config: RobotConfig) -> int:

@@ -17,10 +17,12 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any, TextIO
 
+import msgspec
 import zenoh
 
 from ..bag import Bag, BagWriter
 from ..bag.replay import ReplayOptions, ReplayStats, replay
+from ..bag.ros2 import Ros2BagWriter, Ros2Replay, Ros2Transcoder, require_ros2
 from ..config import RobotConfig
 from ..errors import BadRecording, IcefloeError
 from ..runtime import Node, run_async
@@ -196,8 +198,30 @@ class Recorder:
         self.status.show(self.line("recorded"), final=True)
 
 
+def ros2_recording(config: RobotConfig, robot: str, output: Path, **options: Any) -> Ros2BagWriter:
+    """The writer of ``record --ros2``: the ros2 service's topics (its table, and ``cmd_vel``) in
+    ROS 2's form, under the robot's ROS 2 namespace. A topic the service makes by asking a key
+    (``map``: the grid is answered, not published) is not recorded."""
+    from ..services.ros2 import convert  # numpy and rosbags' types: only for --ros2
+
+    named = msgspec.structs.replace(config, name=robot)
+    published = [output for output in convert.outputs(named) if output.request is None]
+    outputs = [*published, convert.cmd_vel_output(named)]
+    transcoder = Ros2Transcoder(outputs, robot, convert.ros_namespace(named), config.ros2.distro)
+    return Ros2BagWriter(output, transcoder, **options)
+
+
+def ros2_replay(config: RobotConfig) -> Ros2Replay:
+    """What a replay turns back from ROS 2 topics into icefloe's keys (the ros2 service's table)."""
+    from ..services.ros2 import convert
+
+    return Ros2Replay(convert.inputs(config), config.ros2.distro)
+
+
 async def record(args: argparse.Namespace, config: RobotConfig) -> int:
     robot = args.robot or config.name
+    if args.ros2 and (args.keys or args.frames):
+        raise IcefloeError("record --ros2 records the ros2 service's topics: no KEY arguments, no --frames")
     patterns = [resolve_key(k, robot) for k in args.keys]
     if args.frames:
         patterns = [*patterns, keys.key(robot, keys.FRAMES)] if patterns else [f"{keys.PREFIX}/{robot}/**"]
@@ -216,9 +240,17 @@ async def record(args: argparse.Namespace, config: RobotConfig) -> int:
     meta = {"robot": robot, "keys": shown, "exclude": " ".join(excludes),
             "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
             "host": socket.gethostname(), "command": " ".join(["icefloe", *sys.argv[1:]])}
+    options: dict[str, Any] = {"compression": args.compression, "max_size": args.max_size, "metadata": meta}
     async with Node("record", config, announce=False, retry=False) as node:
         try:
-            writer = BagWriter(output, compression=args.compression, max_size=args.max_size, metadata=meta)
+            if args.ros2:
+                bag = ros2_recording(config, robot, output, **options)
+                patterns, output = bag.ros2.keys, bag.folder  # the table's keys only, into a rosbag2 folder
+                keys_filter = KeyFilter(patterns, excludes)
+                shown = ", ".join(f"{spec.topic} ({spec.schema_name})" for spec in bag.ros2.specs())
+                writer: BagWriter = bag
+            else:
+                writer = BagWriter(output, **options)
         except OSError as exc:
             raise IcefloeError(f"{output}: cannot write: {exc.strerror or exc}") from None
         recorder = Recorder(writer, keys_filter)
@@ -240,7 +272,9 @@ async def record(args: argparse.Namespace, config: RobotConfig) -> int:
 
 
 async def replay_verb(args: argparse.Namespace, config: RobotConfig) -> int:
-    bag = Bag(args.files, robot=args.robot)
+    bag = Bag(args.files, robot=args.robot, ros2=ros2_replay(config))
+    if args.ros2:
+        require_ros2(bag)
     options = ReplayOptions(rate=args.rate, loop=args.loop, start=args.start, end=args.end, keys=args.keys or (),
                             exclude=args.exclude or (), clock_hz=args.clock, allow_commands=args.allow_commands)
     status = Status()
@@ -261,7 +295,8 @@ async def replay_verb(args: argparse.Namespace, config: RobotConfig) -> int:
 
 
 def info(args: argparse.Namespace) -> int:
-    bag = Bag(args.files)
+    # ROS 2 topics shown as replay takes them (the default distro's types: these types are the same in each)
+    bag = Bag(args.files, ros2=ros2_replay(RobotConfig()))
     counts: dict[tuple[str, str, str], list[int]] = {}  # (key, form, encoding) -> [count, first, last]
     notes: dict[tuple[str, str, str], str] = {}
     for entry in bag.entries():
@@ -338,6 +373,10 @@ def register(verbs: argparse._SubParsersAction) -> None:
     p.add_argument("--max-size", type=parse_size, default=0, metavar="SIZE",
                    help="split into numbered files of about SIZE (500M, 2G): FILE_000.mcap, FILE_001.mcap ...")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd", help="chunk compression")
+    p.add_argument("--ros2", action="store_true",
+                   help="record the robot's ROS 2 topics as the ros2 service publishes them (odom, ..., and "
+                   "cmd_vel from cmd/twist) into a rosbag2 folder: metadata.yaml and FOLDER_0.mcap in ROS 2's "
+                   "form (ros2msg schemas, CDR), which ros2 bag, rosbags and Foxglove read")
     p.add_argument("--nice", type=int, default=RECORD_NICE, metavar="N",
                    help=f"lower the recorder's CPU priority by N (default {RECORD_NICE})")
     p.set_defaults(run=on_bus(record))
@@ -357,6 +396,8 @@ def register(verbs: argparse._SubParsersAction) -> None:
     p.add_argument("--exclude", action="append", metavar="KEY", help="leave out these keys (repeatable)")
     p.add_argument("--clock", type=float, nargs="?", const=100.0, default=0.0, metavar="HZ",
                    help="publish the recording's time on <robot>/clock (default 100 Hz)")
+    p.add_argument("--ros2", action="store_true",
+                   help="the recording must be a ROS 2 one (record --ros2, ros2 bag -s mcap): refuse another")
     p.add_argument("--allow-commands", action="store_true",
                    help="replay cmd/* even when the robot is live (its hwbridge runs): it will move")
     p.set_defaults(run=on_bus(replay_verb))

@@ -3,9 +3,11 @@
 * A capture thread (`icefloe.vision.capture`) reads frames from the source of ``camera.source``
   (sources.py) into a one-frame slot: the **latest frame wins**. When detection
   falls behind, the frames it never saw are dropped and counted, never queued.
-* Detection runs on every frame it takes, whatever the image rate, and publishes
-  ``camera/landmarks`` stamped with the frame's capture time (its arrival less the capture latency
-  the calibration measured, if it did).
+* Detection runs ``camera.detection_rate_hz`` times a second (0: on every frame it takes),
+  whatever the image rate, and publishes ``camera/landmarks`` stamped with the frame's capture
+  time (its arrival less the capture latency the calibration measured, if it did). It is the
+  camera's main cost, about proportional to the frame's pixels times that rate: a robot's config
+  chooses it (docs/camera.md, "What the camera costs").
 * ``camera/image``: a smaller JPEG at ``camera.image_rate_hz`` (the Wi-Fi is shared
   by a class); ``camera/snapshot``: one full-resolution JPEG of the latest frame.
 * ``camera/frames``: every captured frame as the smaller JPEG, sent by the capture thread
@@ -31,6 +33,7 @@ from icefloe.schemas import messages as m
 from icefloe.vision.capture import Capture
 from icefloe.vision.geometry import Intrinsics, calibration_extras
 from icefloe.vision.sources import Frame, SourceError, picamera2_class
+from icefloe.worldmap import load_world
 
 from .detection import make_detector
 from .frames import Frames, camera_info
@@ -45,6 +48,8 @@ async def main(config: RobotConfig) -> None:
     if cam.source == "picamera2":
         picamera2_class()  # CameraMissing: one line, exit 2 (run() says it), no restart
     detector = make_detector(config)  # ConfigError for a bad calibration file: run() says so, exits
+    if cam.source == "sim":
+        load_world(config.sim.world)  # a bad world or track layout: ConfigError, one line, no retrying
     latency_s = calibration_extras(cam).latency_s
     info = camera_info(cam, Intrinsics.from_config(cam), latency_s)
     async with Node("camera", config) as node:
@@ -91,13 +96,19 @@ async def main(config: RobotConfig) -> None:
         capture.start()
         truth_task = asyncio.create_task(feed_truth()) if cam.source == "sim" else None
         image_period = 1.0 / cam.image_rate_hz if cam.image_rate_hz > 0 else float("inf")
-        next_image = time.monotonic()
+        next_image = next_detection = time.monotonic()
+        detection_period = 1.0 / cam.detection_hz
+        early = 0.5 / cam.fps  # a frame this early is the one due: frames come at fps, with jitter
+        every_frame = cam.detection_rate_hz == 0
         try:
-            async for frame in capture.frames("camera: %d frames captured, %d detected, %d dropped (detection behind)"):
+            async for frame in capture.frames("camera: %d frames captured, %d taken, %d dropped (detection behind)"):
                 now = time.monotonic()
                 stamp, image = frame
-                found = await asyncio.to_thread(detector.detect, image)
-                landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
+                if every_frame or now + early >= next_detection:  # else passed over: detection_rate_hz
+                    # on the schedule (the rate holds on average), or from now after a stall
+                    next_detection = max(next_detection + detection_period, now)
+                    found = await asyncio.to_thread(detector.detect, image)
+                    landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
                 if now >= next_image:
                     next_image = now + image_period
                     images.put(await asyncio.to_thread(small.of, frame))

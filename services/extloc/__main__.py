@@ -9,8 +9,9 @@ One per lab, beside the lab router, not per robot. It reads the overhead camera
 for that frame. The camera's pose comes from ``overhead.pose`` (``icefloe extloc calibrate``),
 or, without one, from the floor markers in the first frames.
 
-It also serves the old PenguinPi localiser's HTTP API on ``overhead.http_port``:
-``GET /pose/get?group=N`` and ``GET /camera/get`` (`oldapi.py`).
+It also serves the old PenguinPi localiser's HTTP API on ``overhead.http_port``, as its clients
+read it: ``GET /pose/get?group=N`` in the old square's frame and units, ``GET /camera/get`` its
+picture (`oldapi.py`, `oldsquare.py`); and the whole frame, ``GET /camera/frame``.
 
 The work between frames (which robots, the camera's pose, each frame's poses) is `tracker.py`'s;
 the capture thread is `icefloe.vision.capture`'s. Here: the wiring.
@@ -59,16 +60,20 @@ async def main(config: RobotConfig) -> None:
         capture = Capture("overhead camera", ov.source, opener, ov.width, ov.height, log=node.log,
                           limited=node.limited, thread_name="extloc-capture")
         capture.start()
-        api = OldApi(ov, tracker.group_of, seen)
+        api = OldApi(ov, tracker.group_of, seen, node.log, {top.robot: top.height for top in tracker.tops.values()})
         if ov.http_port:
             await api.start(ov.http_host, ov.http_port)
-            node.log.info("old localiser API on http://%s:%d (/pose/get?group=N, /camera/get)",
-                          ov.http_host, ov.http_port)
+            node.log.info("old localiser API on http://%s:%d (/pose/get?group=N, /camera/get; /camera/frame), its "
+                          "square's corner at (%g, %g) m, its x axis at %g rad", ov.http_host, ov.http_port,
+                          ov.old_square_x, ov.old_square_y, ov.old_square_yaw)
         node.log.info("looking for %s", ", ".join(f"{t.robot} (marker {i})" for i, t in sorted(tracker.tops.items())))
         try:
             async for frame in capture.frames("extloc: %d frames captured, %d located, %d dropped (behind the camera)"):
                 seen.frame = frame
-                for robot, pose in await asyncio.to_thread(tracker.on_frame, *frame):
+                located = await asyncio.to_thread(tracker.on_frame, *frame)
+                if ov.http_port and seen.camera is None and tracker.locator is not None:  # known from now on
+                    api.camera_known(tracker.intrinsics, tracker.locator.pose)
+                for robot, pose in located:
                     poses[robot].put(pose)
                     seen.poses[robot] = (time.monotonic(), pose)
         finally:

@@ -2,16 +2,20 @@
 
 This is the bus process. It
 
-* takes ``cmd/twist``, ``cmd/wheels``, ``cmd/stop`` and the ``cmd/motion`` and
-  ``cmd/halt`` queries on the Zenoh thread that delivers them, in the order they
-  arrive, and orders them by what they carry (`ordering`, `bridge.Bridge`);
+* takes ``cmd/twist``, ``cmd/wheels``, ``cmd/car``, ``cmd/stop`` and the ``cmd/motion``,
+  ``cmd/halt``, ``lab/stop`` and ``cmd/release`` queries on the Zenoh thread that
+  delivers them, in the order they arrive, and orders them by what they carry
+  (`ordering`, `bridge.Bridge`); ``lab/stop`` may hold the robot stopped (`hold`);
   collects ``io/leds``, ``io/ledarray``, ``io/text``, ``io/screen`` every 20 ms;
 * starts the real-time process (`rt.py`: the cycle, no Zenoh in it) and hands
   it the commands through shared memory; if that process dies, tells the board
   to stop and exits, so that its supervisor (``icefloe up``, systemd) starts
   both afresh;
 * publishes ``hw/wheels`` (``hwbridge.wheels_rate_hz``), ``hw/loop`` (1 Hz),
-  ``hw/battery``, ``io/buttons`` and ``io/dip`` from the state the cycle writes.
+  ``hw/battery``, ``io/buttons`` and ``io/dip`` from the state the cycle writes, and
+  ``hw/hold`` at each change and once a second;
+* steps the virtual car of ``cmd/car`` (its steering turns at its rate) and publishes
+  ``car/state`` (`car_loop`).
 
 Safety lives in the cycle (deadman, stop latch, limits, EXIT/ALL_STOP on
 exit), so it holds even when this process is slow or gone.
@@ -46,6 +50,8 @@ from .shm import IO_SLOTS, Shared, block_name
 EXIT_RT_GONE = 4
 """Exit status when the real-time process died: the supervisor restarts hwbridge, which starts a
 new cycle on a fresh shared-memory block (the old one may hold a write the dead cycle never finished)."""
+HOLD_FILE = "hold.json"
+"""The lab's hold, kept in the robot's private run folder across restarts (`hold.HoldState`)."""
 READ_BACKOFF_S = (0.001, 0.1)
 """First and longest wait before reading the cycle's state again after a read was put off
 (`Shared.read_state` gave None: the cycle was descheduled in the middle of a write)."""
@@ -113,19 +119,20 @@ async def _terminate(proc: asyncio.subprocess.Process) -> None:
 
 async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
     """State -> bus: hw/wheels at its rate, hw/loop at 1 Hz, battery on each reading, buttons on
-    presses, DIP on change and once a second."""
+    presses, DIP and the lab's hold on change and once a second."""
     hw = config.hwbridge
     wheels_pub = node.publisher(keys.WHEELS)
     loop_pub = node.publisher(keys.LOOP)
     battery_pub = node.publisher(keys.HW_BATTERY)
     buttons_pub = node.publisher(keys.BUTTONS)
     dip_pub = node.publisher(keys.DIP)
+    hold_pub = node.publisher(keys.HOLD)
     shared = bridge.shared
     interval = 1.0 / (hw.wheels_rate_hz or hw.rate_hz)
     report = LoopReport(_board_name(config))
     last_sample = last_battery = last_presses = 0
-    last_dip = -1
-    next_loop = time.monotonic()
+    last_dip = last_hold = -1
+    next_loop = next_hold = time.monotonic()
     backoff = READ_BACKOFF_S[0]
     while True:
         s = shared.read_state()
@@ -134,6 +141,9 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
             backoff = min(2 * backoff, READ_BACKOFF_S[1])
             continue
         backoff = READ_BACKOFF_S[0]
+        if bridge.hold_changes != last_hold or time.monotonic() >= next_hold:  # on change, and each second
+            last_hold, next_hold = bridge.hold_changes, time.monotonic() + 1.0
+            hold_pub.put(bridge.hold.message(time.time_ns()))
         if not s["rt_started"]:  # the cycle has not written anything yet
             await asyncio.sleep(interval)
             continue
@@ -180,14 +190,15 @@ async def main(config: RobotConfig) -> int:
     sys.setswitchinterval(GIL_SWITCH_S)
     async with Node("hwbridge", config) as node:
         shared = Shared.create(block_name(config.name))
-        bridge = Bridge(config, shared, node.log)
+        bridge = Bridge(config, shared, node.log, config.runtime_dir / HOLD_FILE)
         inputs = command_inputs(node, bridge)
         try:
             async with asyncio.TaskGroup() as tasks:
                 # When the supervisor returns (the board refused, the cycle died), everything else stops too.
                 cycle = tasks.create_task(supervise(config, bridge, node))
                 others = [tasks.create_task(publish(config, bridge, node)),
-                          tasks.create_task(forward_io(node, bridge))]
+                          tasks.create_task(forward_io(node, bridge)),
+                          tasks.create_task(car_loop(config, bridge, node))]
                 node.log.info("hwbridge up: %s, cycle at %g Hz", _board_name(config),
                               config.hwbridge.rate_hz)
 
@@ -206,8 +217,9 @@ async def main(config: RobotConfig) -> int:
 
 
 def command_inputs(node: Node, bridge: Bridge) -> list[Any]:
-    """``cmd/twist``, ``cmd/wheels``, ``cmd/stop``, ``cmd/motion`` and ``cmd/halt``, each taken
-    on the Zenoh thread that delivers it, stamped with its arrival time at once.
+    """``cmd/twist``, ``cmd/wheels``, ``cmd/car``, ``cmd/stop``, ``cmd/motion``, ``cmd/halt``,
+    ``lab/stop`` and ``cmd/release``, each taken on the Zenoh thread that delivers it, stamped
+    with its arrival time at once.
 
     The other inputs go through the event loop, which a flood of messages can keep
     busy for tens of milliseconds: a stop must not wait in that queue, and a motion
@@ -275,8 +287,10 @@ def command_inputs(node: Node, bridge: Bridge) -> list[Any]:
         return bridge.halt(msg, bridge.stop(keys.HALT.name, o))
 
     return [subscribe(keys.TWIST, bridge.twist), subscribe(keys.WHEELS_CMD, bridge.wheels),
+            subscribe(keys.CAR, bridge.car),
             subscribe(keys.STOP, lambda _msg, o: bridge.stop(keys.STOP.name, o)),
-            queryable(keys.MOTION, bridge.motion), queryable(keys.HALT, halt)]
+            queryable(keys.MOTION, bridge.motion), queryable(keys.HALT, halt),
+            queryable(keys.LAB_STOP, bridge.lab_stop), queryable(keys.RELEASE, bridge.release)]
 
 
 def origin(msg: m.Command, arrival_ns: int, timestamp: zenoh.Timestamp | None) -> Origin:
@@ -285,6 +299,27 @@ def origin(msg: m.Command, arrival_ns: int, timestamp: zenoh.Timestamp | None) -
     if timestamp is not None:  # the router's clock (HLC: ns since the epoch, NTP64 inside)
         zenoh_id, zenoh_ns = str(timestamp.get_id()), timestamp.get_time_as_ntp64().as_nanos()
     return Origin.of(arrival_ns, msg.sender, msg.seq, msg.stamp, zenoh_id, zenoh_ns)
+
+
+CAR_IDLE_S = 1.0
+"""``car/state`` while the car stands still and does not steer: once a second (for late subscribers)."""
+
+
+async def car_loop(config: RobotConfig, bridge: Bridge, node: Node) -> None:
+    """The virtual car's steps at ``car.state_rate_hz`` (`Bridge.car_step`: its steering turns at its
+    rate, the wheels follow), and ``car/state``: each step while it moves or steers, else once a second."""
+    pub = node.publisher(keys.CAR_STATE)
+    period = 1.0 / config.car.state_rate_hz
+    last: tuple[float, ...] = ()
+    quiet_until = 0.0
+    while True:
+        state = bridge.car_step(time.monotonic_ns())
+        now = time.monotonic()
+        shown = (state.v, state.steer, state.steer_target, state.x, state.y, state.theta, float(state.driving))
+        if shown != last or now >= quiet_until:
+            pub.put(state)
+            last, quiet_until = shown, now + CAR_IDLE_S
+        await asyncio.sleep(period)
 
 
 IO_PERIOD_S = 0.02

@@ -9,7 +9,8 @@ may still drive: not if it was issued before a stop, or is older than the
 deadman. It reads the state half to publish ``hw/wheels``, ``hw/loop``,
 ``hw/battery``, ``io/buttons`` and ``io/dip``, to learn when the board has
 confirmed a stop (``stop_confirmed``), and forwards the cycle's messages to
-``log``.
+``log``. The lab's ``lab/stop`` may hold the robot stopped (`hold.HoldState`):
+then every motion command is refused until the hold is released.
 
 Commands and stops come in on Zenoh's threads (``__main__``), so that nothing
 queued in the event loop can reorder them; one lock guards the command state.
@@ -24,21 +25,21 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Awaitable
+from pathlib import Path
 
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload, NotConfirmed
 from icefloe.logs import LimitedLog
+from icefloe.motion.car import VirtualCar
+from icefloe.motion.car import Wheels as CarWheels
+from icefloe.motion.diffdrive import limit_wheels, twist_to_wheels
 from icefloe.ordering import CommandOrder, Origin
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
-from .control import (
-    HIST_BINS,
-    MotionProfile,
-    limit_wheels,
-    percentiles,
-    twist_to_wheels,
-)
+from .control import HIST_BINS, MotionProfile, percentiles
+from .hold import HoldState
 from .shm import IO_LED, IO_LEDARRAY, IO_SCREEN, IO_TEXT, MSG_BOARD, MSG_ERROR, MSG_WARNING, STATE_FIELDS, Shared
 
 MOTION_STEP_S = 0.02
@@ -56,14 +57,21 @@ CONFIRM_POLL_S = 0.001
 class Bridge:
     """Commands in, state out, for one robot; ``shared`` is the block the cycle attaches to."""
 
-    def __init__(self, config: RobotConfig, shared: Shared, log: logging.Logger) -> None:
+    def __init__(self, config: RobotConfig, shared: Shared, log: logging.Logger,
+                 hold_file: Path | None = None) -> None:
+        """``hold_file``: where a hold of the lab's TA is kept across restarts (`HoldState`)."""
         self.config = config
         self.shared = shared
         self.log = log
         self.limited = LimitedLog(log)
         """Lines about bad or clamped input, a few per second per kind."""
         self.max_speed = config.hwbridge.max_wheel_speed
-        self.order = CommandOrder(round(config.hwbridge.deadman_s * 1e9))
+        self.deadman_ns = round(config.hwbridge.deadman_s * 1e9)
+        self.order = CommandOrder(self.deadman_ns)
+        self.car_model = VirtualCar(config.car, config.geometry.track, self.max_speed, time.monotonic())
+        """The virtual car of ``cmd/car`` (lock held to touch it)."""
+        self.car_since = -1
+        """`changes` when the last ``cmd/car`` drove: the car drives while no change came since."""
         self.left = self.right = 0.0
         self.fresh_ns = 0
         """CLOCK_MONOTONIC ns at which the applied motion command was issued (0 = none yet)."""
@@ -87,6 +95,14 @@ class Bridge:
         self._waiting: list[tuple[int, asyncio.Future[dict]]] = []
         """Stop numbers waited for (`confirmed`), and their futures: one task watches them all."""
         self._watcher: asyncio.Task[None] | None = None
+        self.hold = HoldState(hold_file)
+        """The lab's hold (``lab/stop``): while held, every motion command is refused."""
+        self.hold_changes = 0
+        """Holds and releases so far (``hw/hold`` is published at each)."""
+        if self.hold.held:  # kept by the hwbridge before this one: the robot stays held
+            self.stop("held by the lab's TA")
+            log.warning("the robot is still held stopped by the lab's TA (since before hwbridge restarted); "
+                             "motion commands are refused until it is released")
         self.sync()
 
     def sync(self) -> None:
@@ -109,9 +125,12 @@ class Bridge:
                                  f"per wheel (left {left:.3f}, right {right:.3f})")
         with self._lock:
             issued, why = self.order.motion(origin)
+            if not why and self.hold.held:
+                why = self.hold.refusal()
             if why:
                 self.dropped += 1
             else:
+                self._park_car(origin.arrival_ns)
                 self._drive(left, right, issued)
                 self.changes += 1
         if why:
@@ -120,6 +139,70 @@ class Bridge:
         self.sync()
         self._cut(f"another command on {source}")
         return True
+
+    def car(self, msg: m.CarDrive, origin: Origin) -> bool:
+        """A ``cmd/car``: drive as the virtual car, if `CommandOrder` allows (the same rules as
+        every motion command). Clips the steering to ``car.max_steer`` and slows the car for the
+        wheels' limit, each with a line. Safe to call from any thread. Returns whether it drives."""
+        source = keys.CAR.name
+        with self._lock:
+            issued, why = self.order.motion(origin)
+            if not why and self.hold.held:
+                why = self.hold.refusal()
+            if why:
+                self.dropped += 1
+            else:
+                made = self.car_model.command(msg.v, msg.steer, origin.arrival_ns * 1e-9)
+                wheels = self.car_model.wheels
+                self._drive(wheels.left, wheels.right, issued)
+                self.changes += 1
+                self.car_since = self.changes
+        if why:
+            self.limited.warning(f"order:{source}", f"{source}: not applied: {why}")
+            return False
+        if made.clipped:
+            self.limited.warning(f"clip:{source}", f"{source}: steer {msg.steer:.4g} rad is beyond car.max_steer "
+                                 f"({self.config.car.max_steer:g} rad): clipped to {made.steer_target:.3f} rad")
+        if wheels.slowed:
+            self._say_slowed(wheels)
+        self.sync()
+        self._cut(f"another command on {source}")
+        return True
+
+    def _say_slowed(self, wheels: CarWheels) -> None:
+        self.limited.warning(f"slow:{keys.CAR.name}", f"{keys.CAR.name}: v {wheels.asked:.4g} m/s at steer "
+                             f"{self.car_model.steer:.3f} rad needs a wheel beyond hwbridge.max_wheel_speed "
+                             f"({self.max_speed:g} m/s): slowed to {wheels.v:.3f} m/s, the turn kept")
+
+    def car_step(self, now_ns: int) -> m.CarState:
+        """One step of the virtual car (the event loop, at ``car.state_rate_hz``): the steering turns
+        towards its target and the wheels follow it, while the last ``cmd/car`` still drives (no stop,
+        no other command since, its deadman not passed); returns its state for ``car/state``."""
+        model = self.car_model
+        changed = slowed = False
+        with self._lock:
+            if model.driving:
+                lapsed = self.fresh_ns + self.deadman_ns
+                if self.changes != self.car_since or self.stopped:
+                    model.hold(now_ns * 1e-9)  # not expected: what ended it parked the car already
+                elif now_ns > lapsed:
+                    model.hold(lapsed * 1e-9)  # the cycle stopped the wheels at the deadman
+                elif model.advance(now_ns * 1e-9):
+                    wheels = model.wheels
+                    self.left, self.right, slowed = wheels.left, wheels.right, wheels.slowed
+                    changed = True
+            model.advance(now_ns * 1e-9)
+            state = model.state(time.time_ns())
+        if slowed:
+            self._say_slowed(model.wheels)
+        if changed:
+            self.sync()
+        return state
+
+    def _park_car(self, now_ns: int) -> None:
+        """The car stops driving (lock held): a stop or another kind of command came."""
+        if self.car_model.driving:
+            self.car_model.hold(now_ns * 1e-9)
 
     def _drive(self, left: float, right: float, issued_ns: int) -> None:
         """New targets (lock held): release the latch, the deadman counts from ``issued_ns``."""
@@ -149,6 +232,7 @@ class Bridge:
             _issued, number = self.order.stop(origin, self.stop_seq + 1)
             new = number > self.stop_seq
             if new:
+                self._park_car(origin.arrival_ns)
                 self.stop_seq = number
                 self.left = self.right = 0.0
                 self.stopped = True
@@ -230,9 +314,12 @@ class Bridge:
             raise BadPayload(f"{keys.MOTION.name}: {exc}") from None
         with self._lock:
             _issued, why = self.order.motion(origin)
+            if not why and self.hold.held:
+                why = self.hold.refusal()
             if why:
                 self.dropped += 1
             else:
+                self._park_car(origin.arrival_ns)
                 self.changes += 1
                 since = self.changes
         if why:
@@ -246,8 +333,11 @@ class Bridge:
             if done:
                 break
             self.motion_step(left, right, since)
+            # The last step ends at the motion's end, not at the next 50 Hz step: that would
+            # drive up to 20 ms longer (1 % of a second's motion more, varying).
+            step = min(MOTION_STEP_S, max(0.0, profile.end - time.monotonic()))
             try:
-                reason = await asyncio.wait_for(asyncio.shield(cut), MOTION_STEP_S)
+                reason = await asyncio.wait_for(asyncio.shield(cut), step)
             except TimeoutError:
                 continue
             return m.MotionDone(stamp=time.time_ns(), completed=False, reason=reason)
@@ -267,7 +357,7 @@ class Bridge:
         a stop latched on a Zenoh thread wins over a step that has not yet learnt of it."""
         left, right, _ = limit_wheels(left, right, self.max_speed)
         with self._lock:
-            if self.changes != since:
+            if self.changes != since or self.hold.held:
                 return
             self._drive(left, right, time.monotonic_ns())
         self.sync()
@@ -291,6 +381,83 @@ class Bridge:
             await asyncio.sleep(0.01)
         self.limited.warning("cmd/halt", "cmd/halt: wheels not measured at rest within %.0f s", HALT_TIMEOUT_S)
         return self.wheels_message(last)
+
+    # ------------------------------------------------------------------ the lab's hold
+
+    def lab_stop(self, msg: m.LabStop, origin: Origin) -> Awaitable[m.LabStopDone]:
+        """``lab/stop`` (the lab's TA): latch a stop now, hold or release; the answer waits for
+        the board's confirmation of that stop, at most ``msg.timeout``.
+
+        Safe to call from any thread (the queryable's Zenoh callback): a hold is in place before
+        its stop is latched, so no motion command gets between them; a release latches a stop
+        too, so no motion command issued before the release drives after it.
+        """
+        now = time.time_ns()
+        if msg.action == "hold":
+            with self._lock:
+                new = self.hold.hold(now, msg.reason, msg.owner_may_release)
+                self.hold_changes += 1
+            number = self.stop(keys.LAB_STOP.name, origin)
+            said = f" ({msg.reason})" if msg.reason else ""
+            who = "the TA or the robot's owner (cmd/release)" if msg.owner_may_release else "the lab's TA"
+            self.limited.warning("hold", "%s by the lab's TA%s: motion commands are refused until %s releases it",
+                                 "held stopped" if new else "hold renewed", said, who)
+        elif msg.action == "release":
+            if not self.hold.held:  # nothing to release: nothing changes (a robot under way drives on)
+                return self._not_held()
+            number = self.stop(keys.LAB_STOP.name, origin)  # first: nothing issued before the release drives
+            self._release("the lab's TA", now)
+        else:
+            number = self.stop(keys.LAB_STOP.name, origin)
+        self._keep_failed()
+        return self._lab_answer(number, msg.timeout)
+
+    async def _not_held(self) -> m.LabStopDone:
+        return m.LabStopDone(stamp=time.time_ns(), confirmed=True, held=False, detail="was not held")
+
+    async def _lab_answer(self, number: int, timeout: float) -> m.LabStopDone:
+        try:
+            await self.confirmed(number, timeout)
+        except NotConfirmed as exc:
+            return m.LabStopDone(stamp=time.time_ns(), confirmed=False, held=self.hold.held, detail=str(exc))
+        return m.LabStopDone(stamp=time.time_ns(), confirmed=True, held=self.hold.held)
+
+    def release(self, msg: m.Release, origin: Origin) -> Awaitable[m.Hold]:
+        """``cmd/release`` (the robot's owner): end the TA's hold, if the TA allowed it; else an
+        error reply naming who may. Not held: answers so. Safe to call from any thread."""
+        async def answer(refused: str) -> m.Hold:
+            if refused:  # an error reply, and one rate-limited line (the queryable's)
+                raise NotConfirmed(f"refused: {refused}")
+            return self.hold.message(time.time_ns())
+
+        with self._lock:
+            held, refusal = self.hold.held, self.hold.refusal()
+            allowed = self.hold.owner_may_release()
+        if held and not allowed:
+            return answer(refusal)
+        if held:
+            self.stop(keys.RELEASE.name, origin)  # first: nothing issued before the release drives
+            if not self._release("its owner", time.time_ns(), owner=True):
+                return answer(self.hold.refusal())  # the TA held it again meanwhile, for the TA alone
+            self._keep_failed()
+        return answer("")
+
+    def _release(self, by: str, now: int, *, owner: bool = False) -> bool:
+        """End the hold (``owner``: only if its owner may); False if that was refused."""
+        with self._lock:
+            if owner and self.hold.held and not self.hold.owner_may_release():
+                return False
+            was = self.hold.release(now)
+            self.hold_changes += 1
+        if was:
+            self.limited.warning("release", "released by %s: motion commands issued from now on drive again", by)
+        return True
+
+    def _keep_failed(self) -> None:
+        """Say once per kind when the hold could not be written to its file (`HoldState`)."""
+        if self.hold.error:
+            self.limited.error("hold file", "the hold could not be kept in %s (%s): a restarted hwbridge "
+                               "would not be held", self.hold.path, self.hold.error)
 
     # ------------------------------------------------------------------ board I/O
 

@@ -14,6 +14,7 @@ import math
 from collections.abc import MutableSequence
 
 from icefloe.config import Geometry
+from icefloe.motion.diffdrive import limit_wheels, twist_to_wheels  # noqa: F401 - they live in icefloe.motion
 
 # --------------------------------------------------------------------------- units
 
@@ -82,25 +83,6 @@ class DemandDither:
         self.carry = clamp(want - q, -1.0, 1.0)
         self.demand = 5 * q
         return self.demand
-
-
-def twist_to_wheels(v: float, w: float, track: float) -> tuple[float, float]:
-    """Body twist (v m/s forward, w rad/s CCW) -> (left, right) rim speeds, m/s."""
-    half = w * track / 2.0
-    return v - half, v + half
-
-
-def limit_wheels(left: float, right: float, max_speed: float) -> tuple[float, float, bool]:
-    """Scale both wheel speeds down together so neither exceeds ``max_speed`` (m/s).
-
-    Scaling both keeps the curvature the user asked for (clamping each wheel on
-    its own would turn an arc into a different arc). Returns (left, right, clamped).
-    """
-    biggest = max(abs(left), abs(right))
-    if biggest <= max_speed:
-        return left, right, False
-    scale = max_speed / biggest
-    return left * scale, right * scale, True
 
 
 def clamp(value: float, low: float, high: float) -> float:

@@ -42,6 +42,8 @@ requests.
 from __future__ import annotations
 
 import contextlib
+import os
+import select
 import time
 from collections import deque
 
@@ -150,6 +152,8 @@ class PenguinPiBoard(Board):
         self._unwrap = (Unwrapper(), Unwrapper())
         self._dither = (DemandDither(config.geometry), DemandDither(config.geometry))
         self._ser: serial.Serial | None = None
+        self._fd = -1
+        """The port's file descriptor (non-blocking): the cycle reads and writes it directly."""
         self._parser = ppi.Parser()
         # the request in flight, and the kinds we gave up on (see "Matching replies")
         self._inflight: Kind | None = None
@@ -189,6 +193,7 @@ class PenguinPiBoard(Board):
         except (serial.SerialException, OSError, ValueError) as exc:
             self._ser = None
             raise BoardError(f"{self.port_name}: cannot open: {exc}") from None
+        self._fd = self._ser.fileno()  # opened O_NONBLOCK, VMIN = VTIME = 0 (timeout=0)
         self._parser.reset()
         self._inflight = None
         self._stale.clear()
@@ -204,6 +209,7 @@ class PenguinPiBoard(Board):
         self._next_exchange = self._next_poll = now_ns
 
     def close(self) -> None:
+        self._fd = -1
         if self._ser is not None:
             with contextlib.suppress(Exception):
                 self._ser.close()
@@ -225,25 +231,53 @@ class PenguinPiBoard(Board):
         self._unsent = b""
 
     def _write(self, data: bytes) -> None:
-        """Non-blocking write; whatever the driver did not take goes first next time."""
-        assert self._ser is not None
+        """Non-blocking write; whatever the driver did not take goes first next time.
+
+        ``os.write`` on the port's descriptor, not pyserial's ``write``: the same system call,
+        without the Python around it (a cycle writes a request every 5 ms)."""
         try:
-            n = self._ser.write(data)
-        except (serial.SerialException, OSError) as exc:
+            n = os.write(self._fd, data)
+        except BlockingIOError:
+            n = 0  # the driver's buffer is full: all of it next time
+        except OSError as exc:
             raise BoardError(f"{self.port_name}: write failed: {exc}") from None
-        n = len(data) if n is None else n
         self._unsent = data[n:]
+
+    def _read(self) -> bytes:
+        """What has arrived (b"" if nothing), without waiting.
+
+        ``os.read`` on the port's descriptor, not pyserial's ``read``: pyserial asks ``select``
+        first and builds a timeout object, three times the cost of the read itself, every period.
+        With VMIN = VTIME = 0 a port with nothing to read returns b""; one whose device has gone
+        (a pseudo-terminal whose far end closed) fails, and the link is lost."""
+        try:
+            return os.read(self._fd, 4096)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            raise BoardError(f"{self.port_name}: read failed (link lost?): {exc}") from None
+
+    def _check_connected(self, now_ns: int) -> None:
+        """Raise `BoardError` if the port says it has bytes to read and then reads none: its
+        device is gone (a USB adapter pulled out). Asked only when a request timed out; pyserial
+        asked at every read. Bytes that did come meanwhile are taken as any others."""
+        try:
+            ready = select.select([self._fd], [], [], 0)[0]
+        except (OSError, ValueError) as exc:
+            raise BoardError(f"{self.port_name}: {exc} (link lost?)") from None
+        if ready:
+            data = self._read()
+            if not data:
+                raise BoardError(f"{self.port_name}: the device reports data and gives none (disconnected?)")
+            self._heard_ns = now_ns
+            self._receive(data, now_ns)
 
     # ------------------------------------------------------------------ the cycle
 
     def cycle(self, now_ns: int, left: float, right: float, stopped: bool, until_ns: int = 0) -> None:
-        ser = self._ser
-        if ser is None:
+        if self._fd < 0:
             raise BoardError(f"{self.port_name}: not open")
-        try:
-            data = ser.read(4096)
-        except (serial.SerialException, OSError) as exc:
-            raise BoardError(f"{self.port_name}: read failed (link lost?): {exc}") from None
+        data = self._read()
         if data:
             self._heard_ns = now_ns
             self._receive(data, now_ns)
@@ -258,6 +292,8 @@ class PenguinPiBoard(Board):
                 self.duty_left = self.duty_right = 0.0
                 self._next_exchange = now_ns  # then the wheel exchange, as soon as the link is free
         if self._inflight is not None and now_ns > self._inflight_deadline:
+            self._check_connected(now_ns)
+        if self._inflight is not None and now_ns > self._inflight_deadline:  # still unanswered
             self.timeouts += 1
             self._stale.add(self._inflight)  # its reply may still come: probe past it
             self._inflight = None

@@ -54,7 +54,7 @@ from icefloe.errors import BoardError, BoardMismatch
 
 from .board import MSG_ERROR, MSG_INFO, MSG_WARNING, Board, Say, make_board
 from .control import STOP_LATCHED, STOP_NONE, SlewLimiter, gate, hist_bin
-from .shm import STATE_FIELDS, Shared
+from .shm import Shared
 
 CLOCK_MONOTONIC = 1
 TIMER_ABSTIME = 1
@@ -66,6 +66,10 @@ KICK_GUARD_FRACTION = 8
 """A stop within period / 8 of the next deadline waits for it (`Cycle.stop_now`)."""
 EXIT_MISMATCH = 3
 """Exit status when the board is not the one the config describes (do not restart)."""
+PUBLISH_PERIODS = 10
+"""The state is written at once when there is news for the bus side (a new encoder sample, a stop,
+a stop confirmed, the link up or down), else every 10th period (10 ms at 1 kHz: the loop
+statistics, battery, buttons). Writing it every period was a fifth of the cycle's own work."""
 
 
 class _Timespec(ctypes.Structure):
@@ -162,8 +166,13 @@ class Cycle:
         """The latest latched stop (by number) the board has confirmed."""
         self.io_dropped = 0
         self.target_left = self.target_right = 0.0
-        self._state = [0] * len(STATE_FIELDS)
         self._started = time.monotonic()
+        self._pid = os.getpid()
+        """This process's id, for the state (read once: `os.getpid` is a system call each time)."""
+        self._published = (-1, -1, -1, False)
+        """(exchanges, stop_reason, confirmed, link_up) as last written (`_publish_news`)."""
+        self._publish_due = 0
+        """`cycles` at which the state is written even without news."""
 
     def say(self, kind: int, text: str) -> None:
         self.shared.push_message(kind, text)
@@ -200,7 +209,7 @@ class Cycle:
         self._board_step(now_ns, stopped)
         self._confirm(stop, stop_seq)
         self._forward_io()
-        self._publish()
+        self._publish_news()
 
     def _confirm(self, stop: int, stop_seq: int) -> None:
         """Report stop ``stop_seq`` confirmed once the board is verified at rest duty."""
@@ -272,9 +281,18 @@ class Cycle:
             board.stop_lost()
             board.close()
 
+    def _publish_news(self) -> None:
+        """`_publish` if there is news for the bus side (`PUBLISH_PERIODS`)."""
+        exchanges, reason, confirmed, link_up = self._published
+        if (self.board.exchanges != exchanges or self.stop_reason != reason or self.confirmed != confirmed
+                or self.link_up != link_up or self.cycles >= self._publish_due):
+            self._publish()
+
     def _publish(self) -> None:
-        b, s = self.board, self._state
-        s[:] = (
+        b = self.board
+        self._published = (b.exchanges, self.stop_reason, self.confirmed, self.link_up)
+        self._publish_due = self.cycles + PUBLISH_PERIODS
+        self.shared.write_state((
             b.stamp, b.sample_ns, b.ticks_left, b.ticks_right, b.exchanges, int(self.link_up),
             b.speed_left, b.speed_right, self.target_left, self.target_right,
             b.duty_left, b.duty_right,
@@ -283,10 +301,9 @@ class Cycle:
             b.garbage_bytes, b.board_errors,
             b.battery_voltage, b.battery_current, self._started,
             b.battery_ns, b.button_presses, b.dip, b.late, b.lost, self.io_dropped, 0,
-            os.getpid(), int(self.mismatch), b.watchdog, self.kicks, self.shared.stalled_reads,
+            self._pid, int(self.mismatch), b.watchdog, self.kicks, self.shared.stalled_reads,
             self.confirmed,
-        )
-        self.shared.write_state(s)
+        ))
 
     # ------------------------------------------------------------------ the loop
 

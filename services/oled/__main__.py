@@ -2,7 +2,7 @@
 
     python -m icefloe.services.oled --config deploy/robots/sim.toml
 
-Inputs: ``power/battery``, ``hw/wheels``, ``hw/loop``, ``odom/pose``, ``log``,
+Inputs: ``power/battery``, ``hw/wheels``, ``hw/loop``, ``hw/hold``, ``odom/pose``, ``log``,
 ``oled/text``, ``oled/screen``, ``io/buttons`` (button 0: next screen, button 2:
 the screen's action) and the services' liveliness tokens. Output: ``oled/frame``
 and the configured sink (`sinks`).
@@ -44,9 +44,10 @@ REFRESH_S = 1.0
 POLL_S = 2.0
 """Read the addresses (network screen) or ask for the liveliness tokens (services screen) this
 often while that screen is shown, s."""
-ALWAYS: dict[str, keys.Topic] = {"battery": keys.BATTERY, "loop": keys.LOOP}
-"""`Status` field -> topic, followed all the time: the battery inverts every screen; hw/loop
-comes once a second (following it on demand would leave the timing screen empty for a second)."""
+ALWAYS: dict[str, keys.Topic] = {"battery": keys.BATTERY, "loop": keys.LOOP, "hold": keys.HOLD}
+"""`Status` field -> topic, followed all the time: the battery inverts every screen, the lab's
+hold replaces every screen; hw/loop comes once a second (following it on demand would leave the
+timing screen empty for a second)."""
 ON_DEMAND: dict[str, keys.Topic] = {"wheels": keys.WHEELS, "pose": keys.ODOM_POSE}
 """`Status` field -> topic, followed only while the screen shown reads the field: 150 messages a
 second that Zenoh would otherwise deliver to a screen that does not show them."""

@@ -45,6 +45,12 @@ class Status:
     errors: int = 0
     """Errors seen since start."""
     pose: m.Pose | None = None
+    hold: m.Hold | None = None
+    """hwbridge's last ``hw/hold``: while the lab's TA holds the robot, every screen says so (`held`)."""
+
+    @property
+    def held(self) -> bool:
+        return self.hold is not None and self.hold.held
 
     @property
     def inverted(self) -> bool:
@@ -156,6 +162,17 @@ def pose(s: Status) -> Frame:
     return f
 
 
+def held(s: Status) -> Frame:
+    """Shown instead of any screen while the lab's TA holds the robot stopped (``hw/hold``)."""
+    f = Frame()
+    f.title("HELD BY THE LAB'S TA")
+    hold = s.hold
+    f.text(1, 0, (hold.reason if hold and hold.reason else "wheels stopped")[:COLS])
+    f.text(2, 0, "driving refused until")
+    f.text(3, 0, "TA or owner releases" if hold and hold.owner_may_release else "the TA releases it")
+    return f
+
+
 @dataclass(frozen=True)
 class Screen:
     name: str
@@ -183,8 +200,8 @@ ERRORS = 7
 
 
 def render(index: int, status: Status) -> Frame:
-    """The frame of screen ``index``, inverted while the battery is low."""
-    frame = SCREENS[index].render(status)
+    """The frame of screen ``index`` (of `held` while the robot is held), inverted while the battery is low."""
+    frame = held(status) if status.held else SCREENS[index].render(status)
     return frame.inverted() if status.inverted else frame
 
 
@@ -203,4 +220,6 @@ def _shown(value: object) -> object:
 def view(index: int, status: Status) -> tuple[object, ...]:
     """Everything screen ``index`` shows, comparable: while it is equal, `render` gives the same
     frame, so the service renders only when it changed."""
+    if status.held:
+        return ("held", status.inverted, _shown(status.hold))
     return (index, status.inverted, *(_shown(getattr(status, name)) for name in SCREENS[index].reads))

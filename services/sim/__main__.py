@@ -24,7 +24,7 @@ import time
 from collections.abc import Awaitable, Callable
 
 from icefloe.config import RobotConfig
-from icefloe.errors import IcefloeError
+from icefloe.errors import EXIT_CONFIG, ConfigError, IcefloeError
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -67,7 +67,8 @@ async def main(config: RobotConfig) -> None:
             sim = Simulator(config, on_gpio=on_gpio)
         except (OSError, ValueError, IcefloeError) as exc:  # e.g. the socket's folder is not writable
             node.log.error("cannot start the simulated %s: %s", config.board.kind, exc)
-            raise SystemExit(1) from None
+            # a bad world or layout file: starting again cannot help (`icefloe up` does not restart it)
+            raise SystemExit(EXIT_CONFIG if isinstance(exc, ConfigError) else 1) from None
         try:
             node.log.info("simulating a %s, %s profile; world seed %d (sim.seed = %d repeats this run)",
                           sim.kind, config.sim.profile, sim.world.seed, sim.world.seed)
@@ -105,8 +106,8 @@ async def _truth(node: Node, sim: Simulator) -> None:
             raise RuntimeError("the simulation clock stopped (see the traceback above)")
         x, y, theta = sim.world.pose
         v, w = sim.world.velocity
-        pub.put(m.Truth(stamp=time.time_ns(), x=x, y=y, theta=theta, collided=sim.world.collided,
-                        collisions=sim.world.collisions, v=v, w=w))
+        pub.put(m.Truth(stamp=time.time_ns(), x=x, y=y, theta=theta, sim_time=sim.clock.now,
+                        collided=sim.world.collided, collisions=sim.world.collisions, v=v, w=w))
         deadline = max(deadline + period, time.monotonic())
         await asyncio.sleep(deadline - time.monotonic())
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,12 +71,15 @@ STREAMS = (
     Stream(keys.LOC_POSE, RobotLogger.loc, rate_hz=20),
     Stream(keys.EXTLOC_POSE, RobotLogger.extloc, rate_hz=20),  # the lab's overhead camera (docs/extloc.md)
     Stream(keys.TRUTH, RobotLogger.truth, rate_hz=20),  # 50 Hz on the bus
+    Stream(keys.CAR_STATE, RobotLogger.car, rate_hz=20),  # 50 Hz while the car moves, 1 Hz standing
     Stream(keys.SLAM_POSE, RobotLogger.slam, rate_hz=20),
     Stream(keys.SLAM_MAP, RobotLogger.slam_map, rate_hz=2),
     Stream(keys.MAP_LANDMARKS, RobotLogger.reference_map, rate_hz=2),
     Stream(keys.LANDMARKS, RobotLogger.landmarks, rate_hz=10),
     Stream(keys.NAV_PATH, RobotLogger.path),  # a few per run
     Stream(keys.NAV_STATUS, RobotLogger.nav_status),  # logged only when the state changes
+    Stream(keys.JUDGE_STATE, RobotLogger.judge, rate_hz=5),  # the lap judge (docs/judge.md)
+    Stream(keys.JUDGE_LAP, RobotLogger.judge_lap, latest=False),  # once a lap
     Stream(keys.IMAGE, RobotLogger.image, rate_hz=10),
     Stream(keys.BATTERY, RobotLogger.battery),
     Stream(keys.HW_BATTERY, RobotLogger.battery_raw, rate_hz=5),
@@ -83,6 +87,11 @@ STREAMS = (
     Stream(keys.OLED_FRAME, RobotLogger.oled),  # no stamp; a few Hz at most
     Stream(keys.LOG, RobotLogger.log, latest=False),  # every line matters
 )
+
+
+def car_size(config: RobotConfig) -> tuple[float, float]:
+    """(wheelbase, track) m of the virtual car drawn, from a robot config."""
+    return config.car.wheelbase, config.geometry.track
 
 
 def world_markers(config: RobotConfig, log: logging.Logger) -> list[tuple[int, float, float, float, float]]:
@@ -150,7 +159,8 @@ class Shown:
         """Start showing ``robot`` (nothing happens if it is shown already)."""
         if robot in self.loggers:
             return
-        logger = RobotLogger(self.rec, robot, capture_width=self.node.config.camera.width)
+        logger = RobotLogger(self.rec, robot, capture_width=self.node.config.camera.width,
+                             car_size=car_size(self.node.config))
         logger.setup()
         logger.landmark_map(self._markers)
         logger.obstacles(self._obstacles)
@@ -158,6 +168,7 @@ class Shown:
         for stream in STREAMS:
             self._tasks.create_task(self._follow(logger, stream))
         self._tasks.create_task(self._follow_grid(logger))
+        self._tasks.create_task(self._car_size(logger))
         # A new robot gets its own tab; the layout is sent again with it.
         self.rec.send_blueprint(blueprint(list(self.loggers)))
         self.node.log.info("showing robot %r", robot)
@@ -174,6 +185,22 @@ class Shown:
             except Exception as exc:  # a message that decodes but cannot be drawn must not stop the viewer
                 key = keys.key(logger.robot, stream.topic)
                 self.node.limited.warning(f"{logger.robot}/{stream.topic.name}", "%s: dropped: %s", key, exc)
+
+    async def _car_size(self, logger: RobotLogger) -> None:
+        """The robot's own car (its ``info``: wheelbase, track), once it answers; until then, and for a
+        robot that never does, the config's."""
+        while True:
+            try:
+                info = await self.node.query(keys.INFO, m.Stop(), robot=logger.robot, timeout=GRID_TIMEOUT_S)
+            except NotReachable:
+                await asyncio.sleep(GRID_POLL_S)
+                continue
+            except BadPayload as exc:
+                self.node.limited.warning(f"{logger.robot}/info", "%s", str(exc)[:PROBLEM_CHARS])
+                return
+            if info.wheelbase > 0 and info.track > 0 and math.isfinite(info.wheelbase + info.track):
+                logger.car_size = (info.wheelbase, info.track)
+            return
 
     async def _follow_grid(self, logger: RobotLogger) -> None:
         """Ask the robot for its occupancy grid now and then; draw it when it changed. A grid that

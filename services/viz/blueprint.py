@@ -7,7 +7,8 @@ One tab per robot (a single robot gets its layout without tabs)::
     |   top-down map    |  + markers     |  battery voltage     |
     |                   +----------------+  battery current     |
     +-------------------+  OLED screen   |  loop latency (ms)   |
-    |   log             |                |  overruns, link err. |
+    |   log             +----------------+  overruns, link err. |
+    |                   |  lap judge     |  lap time, penalties |
     +-------------------+----------------+----------------------+
 
 Plots show the last `PLOT_WINDOW_S` seconds before the time cursor, so a live
@@ -50,7 +51,8 @@ def robot_layout(robot: str) -> rrb.Horizontal:
         rrb.Vertical(
             rrb.Spatial2DView(origin=f"{root}/camera", name="camera"),
             rrb.Spatial2DView(origin=f"{root}/oled", name="OLED"),
-            row_shares=[3, 1],
+            rrb.TextDocumentView(origin=f"{root}/judge/lap", name="lap judge"),
+            row_shares=[6, 2, 1],
         ),
         rrb.Vertical(
             _plot(f"{root}/wheels", "wheel speed (m/s): target vs measured"),
@@ -58,6 +60,7 @@ def robot_layout(robot: str) -> rrb.Horizontal:
             _plot(f"{root}/battery/current", "current (A)"),
             _plot(f"{root}/loop/latency_ms", "hwbridge wake-up latency (ms)"),
             _plot(f"{root}/loop/errors", "overruns, link errors"),
+            _plot(f"{root}/judge", "lap judge: lap time, penalties (s)"),
         ),
         column_shares=[4, 3, 3],
         name=robot,

@@ -11,6 +11,9 @@ map/landmarks                      the world file's markers (static)           l
 map/odom, map/odom/trail           pose arrow and the path driven              odom/pose
 map/loc, map/loc/covariance        pose arrow and its 95 % ellipse             loc/pose
 map/truth, map/truth/trail         the simulator's true pose                   sim/truth
+map/car, map/car/trail             the virtual car: its body, its front wheels car/state
+                                   at the steering angle, at its bicycle-model
+                                   pose (odometry's frame), and its path
 map/reference                      the map maker's landmarks, 95 % ellipses    map/landmarks
 map/slam, map/slam/covariance      SLAM's pose arrow and its 95 % ellipse      slam/pose
 map/slam/landmarks                 SLAM's landmarks, 95 % ellipses             slam/map
@@ -19,6 +22,11 @@ map/obstacles                      the world file's walls and boxes (static)   l
 map/grid                           the occupancy grid, a cell per pixel        map/grid (a query)
 map/path                           the path the follower drives ([] clears)    nav/path
 log/nav                            the follower's state, on each change        nav/status
+map/judge/penalties                the lap judge's penalties where they        judge/state
+                                   happened, labelled (cleared at a lap start)
+judge/{lap_time,penalties}         the lap in progress: time, penalty s        judge/state
+judge/lap                          the lap in words (a text document)          judge/state
+log/judge                          each lap's result, each penalty             judge/lap, judge/state
 camera/image, camera/image/markers the JPEG and the detected marker outlines   camera/image, .../landmarks
 oled                               the little screen, one pixel per pixel      oled/frame
 wheels/{left,right}/{target,measured}  commanded vs measured rim speed, m/s    hw/wheels
@@ -75,9 +83,15 @@ EXTLOC_COLOR = (190, 70, 220)
 MARKER_COLOR = (230, 60, 60)
 RAY_COLOR = (250, 200, 40)
 SLAM_COLOR = (0, 190, 190)
+CAR_COLOR = (255, 120, 40)
+"""The virtual car of ``cmd/car`` (``car/state``): its body and trail."""
+CAR_WHEEL_COLOR = (40, 40, 40)
 REFERENCE_MAP_COLOR = (255, 140, 0)
 OBSTACLE_COLOR = (90, 90, 90)
 PATH_COLOR = (255, 60, 200)
+PENALTY_COLORS = {"tyre_off": (255, 170, 0), "bogged": (200, 40, 40), "ran_stop": (160, 0, 200)}
+PENALTY_MARKS = 100
+"""Penalty markers kept on the map per lap (a robot wandering off and on for minutes makes many)."""
 GRID_FREE_COLOR = (255, 255, 255, 20)
 """A free cell: a faint veil, so the map shows where the grid ends."""
 GRID_OCCUPIED_COLOR = (140, 140, 140, 190)
@@ -93,6 +107,39 @@ TEXT_LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "error": "ER
 def heading(x: float, y: float, theta: float, length: float = ARROW_LENGTH) -> tuple[list[float], list[float]]:
     """Origin and vector of an arrow for a pose."""
     return [x, y], [length * math.cos(theta), length * math.sin(theta)]
+
+
+def car_outline(x: float, y: float, theta: float, steer: float, wheelbase: float,
+                track: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The virtual car at its rear axle's centre (x, y), heading theta, steered ``steer`` rad (left
+    positive): (its body, a closed 5-point outline; its four wheels, each a 2-point segment: rear
+    left, rear right, front left, front right), in world coordinates, m.
+
+    The body runs from a fifth of the wheelbase behind the rear axle to a fifth ahead of the front
+    one, as wide as the track; each wheel is 0.3 wheelbases long. The front wheels turn as a real
+    car's do (Ackermann): each about the one centre the bicycle model turns about, L / tan(steer) to
+    the left of the rear axle, so the inner wheel turns more than ``steer`` and the outer less; the
+    bicycle model's one wheel, between them, turns by ``steer``."""
+    c, s = math.cos(theta), math.sin(theta)
+
+    def world(points: np.ndarray) -> np.ndarray:  # car frame (x forward, y left) -> world
+        return np.column_stack([x + c * points[:, 0] - s * points[:, 1], y + s * points[:, 0] + c * points[:, 1]])
+
+    over, half = 0.2 * wheelbase, track / 2
+    body = np.array([(-over, -half), (wheelbase + over, -half), (wheelbase + over, half), (-over, half),
+                     (-over, -half)])
+    tire = 0.15 * wheelbase
+    wheels = []
+    for ax, side in ((0.0, half), (0.0, -half), (wheelbase, half), (wheelbase, -half)):
+        angle = 0.0
+        if ax and steer:
+            # the wheel's own angle: its axis passes through the turning centre (0, L / tan(steer))
+            angle = math.atan2(wheelbase, wheelbase / math.tan(steer) - side)
+            angle = math.remainder(angle, math.pi)  # a wheel is a line: left turns positive, right negative
+        d = np.array([math.cos(angle), math.sin(angle)]) * tire
+        centre = np.array([ax, side])
+        wheels.append(world(np.array([centre - d, centre + d])))
+    return world(body), wheels
 
 
 def covariance_ellipse(x: float, y: float, covariance: Sequence[float], points: int = 48) -> np.ndarray:
@@ -209,18 +256,24 @@ class Trail:
 class RobotLogger:
     """Logs one robot's messages to a Rerun recording under ``/robots/<name>``."""
 
-    def __init__(self, rec: rr.RecordingStream, robot: str, *, capture_width: int = 0) -> None:
+    def __init__(self, rec: rr.RecordingStream, robot: str, *, capture_width: int = 0,
+                 car_size: tuple[float, float] = (0.15, 0.156)) -> None:
         self.rec = rec
         self.robot = robot
         self.root = f"robots/{robot}"
         self.capture_width = capture_width
         """Width of the frames the detector ran on; marker corners are in its pixels (0 = same as the image)."""
         self._image_width = 0
-        self._trails = {"odom": Trail(), "loc": Trail(), "truth": Trail(), "extloc": Trail(), "slam": Trail()}
+        self._trails = {"odom": Trail(), "loc": Trail(), "truth": Trail(), "extloc": Trail(), "slam": Trail(),
+                        "car": Trail()}
         self._trail_rate = {name: Decimator(TRAIL_RATE_HZ) for name in self._trails}
         self._ray_pose: dict[str, tuple[float, float, float]] = {}
         self._nav_state: tuple[str, int, str] | None = None
         self._grid: tuple[object, ...] | None = None
+        self._penalties: dict[tuple[int, str], m.JudgeEvent] = {}
+        self._judge_lap = 0
+        self.car_size = car_size
+        """(wheelbase, track) m of the car drawn: the robot's (its ``info``, live), else the config's."""
 
     def _at(self, stamp: int) -> None:
         self.rec.set_time(TIMELINE, timestamp=np.datetime64(stamp, "ns"))
@@ -309,6 +362,39 @@ class RobotLogger:
         self._log("log/nav", rr.TextLog(f"{msg.state} path {msg.seq} ({msg.points} points){why}",
                                            level="WARN" if msg.state == "stopped" else "INFO"))
 
+    def judge(self, msg: m.JudgeState) -> None:
+        """The lap judge's lap in progress: time and penalty seconds as scalars, the lap in words,
+        each new penalty as a marker where it happened (labelled) and a log line."""
+        self._at(msg.stamp)
+        new_lap = msg.lap != self._judge_lap
+        if new_lap:  # its penalties start afresh
+            self._judge_lap = msg.lap
+            self._penalties.clear()
+        fresh = [e for e in msg.events
+                 if e.penalty > 0 and e.lap == msg.lap and (e.stamp, e.kind) not in self._penalties]
+        for event in fresh:
+            if len(self._penalties) < PENALTY_MARKS:
+                self._penalties[(event.stamp, event.kind)] = event
+            self._log("log/judge", rr.TextLog(f"lap {event.lap}: {event.text} (+{event.penalty:.0f} s)", level="WARN"))
+        if fresh or new_lap:
+            marks = list(self._penalties.values())
+            self._log("map/judge/penalties",
+                      rr.Points2D([(e.x, e.y) for e in marks], radii=0.03, show_labels=True,
+                                  colors=[PENALTY_COLORS.get(e.kind, MARKER_COLOR) for e in marks],
+                                  labels=[f"+{e.penalty:.0f} s {e.kind.replace('_', ' ')}" for e in marks]))
+        self._log("judge/lap_time", rr.Scalars(msg.lap_time))
+        self._log("judge/penalties", rr.Scalars(msg.penalties))
+        best = f", best score {msg.best_score:.2f} s of {msg.laps} laps" if msg.laps else ""
+        lap = (f"lap {msg.lap}: {msg.lap_time:.1f} s, penalties {msg.penalties:.0f} s (tyres {msg.tyre_off}, "
+               f"bogged {msg.bogged}, stop signs run {msg.ran_stop})" if msg.lap else "waiting at the start line")
+        self._log("judge/lap", rr.TextDocument(f"{msg.track}: {lap}{best}"))
+
+    def judge_lap(self, msg: m.JudgeLap) -> None:
+        """One lap's result, as a log line."""
+        self._at(msg.stamp)
+        self._log("log/judge", rr.TextLog(f"lap {msg.lap} of {msg.track}: {msg.time:.2f} s + {msg.penalties:.0f} s "
+                                          f"- {msg.reward:.0f} s = {msg.score:.2f} s", level="INFO"))
+
     def _pose(self, name: str, stamp: int, x: float, y: float, theta: float, color: tuple[int, int, int]) -> None:
         self._at(stamp)
         origin, vector = heading(x, y, theta)
@@ -324,6 +410,21 @@ class RobotLogger:
 
     def truth(self, msg: m.Truth) -> None:
         self._pose("truth", msg.stamp, msg.x, msg.y, msg.theta, TRUTH_COLOR)
+
+    def car(self, msg: m.CarState) -> None:
+        """The virtual car at its bicycle-model pose (which starts at 0, 0, 0 where hwbridge started,
+        as odometry's does): body and trail in the car's colour, the wheels dark, the front ones at
+        the steering angle; labelled with its speed and steering."""
+        self._at(msg.stamp)
+        wheelbase, track = self.car_size
+        body, wheels = car_outline(msg.x, msg.y, msg.theta, msg.steer, wheelbase, track)
+        self._log("map/car", rr.LineStrips2D([body, *wheels], colors=[CAR_COLOR] + [CAR_WHEEL_COLOR] * 4,
+                                             radii=[0.004] + [0.008] * 4,
+                                             labels=[f"car {msg.v:.2f} m/s {math.degrees(msg.steer):+.0f}°"]
+                                             + [""] * 4))
+        trail = self._trails["car"]
+        if trail.add(msg.x, msg.y) and self._trail_rate["car"].keep(msg.stamp):
+            self._log("map/car/trail", rr.LineStrips2D([list(trail.points)], colors=CAR_COLOR, radii=0.004))
 
     def extloc(self, msg: m.ExternalPose) -> None:
         """The overhead camera's pose, next to odometry's and the localizer's, with its uncertainty."""

@@ -6,7 +6,8 @@ the recorder received it), so the time slider scrubs through the recorded sessio
 live view nothing is thinned out: a file is looked at after the fact, every sample is worth a
 point. Raw channels (keys outside the key table, payloads that did not decode) are not drawn.
 A recording holds no query answers, so the occupancy grid drawn is the one of the config's world
-file (`icefloe.grid.of_robot`), as are the landmarks and obstacles.
+file (`icefloe.grid.of_robot`), as are the landmarks and obstacles, and the car on ``car/state``
+has the config's wheelbase and track.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from icefloe.errors import BadRecording
 from icefloe.logs import LimitedLog
 from icefloe.schemas import keys
 
-from .app import STREAMS, open_recording, world_grid, world_markers, world_obstacles
+from .app import STREAMS, car_size, open_recording, world_grid, world_markers, world_obstacles
 from .logging_rr import RobotLogger
 from .options import VizOptions
 
@@ -48,7 +49,8 @@ def show(bag: Bag, config: RobotConfig, options: VizOptions) -> int:
     grid = world_grid(config, log) if obstacles else None  # a recording holds no queries: the world file's
     loggers: dict[str, RobotLogger] = {}
     for robot in robots:
-        logger = loggers[robot] = RobotLogger(rec, robot, capture_width=config.camera.width)
+        logger = loggers[robot] = RobotLogger(rec, robot, capture_width=config.camera.width,
+                                              car_size=car_size(config))
         logger.setup()
         logger.landmark_map(markers)
         logger.obstacles(obstacles)

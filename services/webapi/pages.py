@@ -76,6 +76,7 @@ class Pages:
             "max_wheel_speed": c.hwbridge.max_wheel_speed,
             "track": c.geometry.track,
             "camera": {"width": c.camera.width, "height": c.camera.height},
+            "car": {"wheelbase": c.car.wheelbase, "max_steer": c.car.max_steer, "steer_rate": c.car.steer_rate},
             "access_control": c.zenoh.access_control,
         })
 

@@ -30,7 +30,7 @@ from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
-from . import params
+from . import params, timing
 from .auth import Login, owner_only
 from .bus import Bridge, Caller, HttpError, render
 from .camera import Camera
@@ -45,10 +45,6 @@ LOG_HISTORY = 50
 """Log lines a new stream of ``log`` starts with (the robot's page shows them)."""
 S4 = 3
 """io/buttons number of the HAT's S4, the button the old /hat/button/get counted."""
-STOP_LEAD_S = 0.02
-"""An unramped timed motion on the PenguinPi covers V·(T + 20 ms): the wheels coast ~0.1 s after
-the stop, more than its integral controller lags at the start (bench/timed_motion.py measures it;
-`Api.timed_duration` takes it off)."""
 
 
 def text(body: object = "") -> web.Response:
@@ -130,6 +126,9 @@ class Api:
         """m/s per firmware demand unit."""
         self.max_demand = config.webapi.max_demand
         self.max_time = config.webapi.max_time
+        self.signs = config.webapi.wheel_signs
+        """(left, right): how the old API's clients see each wheel (``[webapi] wheel_signs``): their
+        demands and counts of a wheel with -1 are negated on the way in and out."""
         self.demand = [0.0, 0.0]
         """Last held demands (left, right), for /motor/set/velocity."""
         self.encoder_zero = (0, 0)
@@ -201,12 +200,13 @@ class Api:
         return await self.follows.get(keys.WHEELS, self.robot.timeout)
 
     async def encoders(self) -> tuple[int, int] | None:
-        """Counts since the last /robot/hw/reset, wrapped to int16 as the firmware's."""
+        """Counts since the last /robot/hw/reset, wrapped to int16 as the firmware's, each with
+        its wheel's sign (``[webapi] wheel_signs``)."""
         counts = await self.counts()
         if counts is None:
             return None
-        return (params.to_int16(counts.ticks_left - self.encoder_zero[0]),
-                params.to_int16(counts.ticks_right - self.encoder_zero[1]))
+        return (params.to_int16(self.signs[0] * (counts.ticks_left - self.encoder_zero[0])),
+                params.to_int16(self.signs[1] * (counts.ticks_right - self.encoder_zero[1])))
 
     async def get_dip(self) -> int | None:
         """The DIP switch (hwbridge sends it once a second), or None if none came within the bus timeout."""
@@ -227,9 +227,14 @@ class Api:
         return text(json.dumps(body))
 
     async def drive(self, left: float, right: float) -> None:
-        """Hold wheel demands (firmware units) until the next command."""
+        """Hold wheel demands (firmware units, as the client sees the wheels) until the next command."""
         self.demand = [left, right]
-        await self.robot.set_velocity(left * self.unit, right * self.unit)
+        await self.robot.set_velocity(*self.speeds(left, right))
+
+    def speeds(self, left: float, right: float) -> tuple[float, float]:
+        """A client's demands (firmware units) -> the wheels' rim speeds on the bus (m/s), each
+        with its wheel's sign (``[webapi] wheel_signs``)."""
+        return left * self.signs[0] * self.unit, right * self.signs[1] * self.unit
 
     # ------------------------------------------------------------------ robot
 
@@ -242,30 +247,15 @@ class Api:
         else:
             # One cmd/motion query: hwbridge ramps, holds and stops, and answers when done.
             self.demand = [0.0, 0.0]
-            await self.robot.set_velocity(left * self.unit, right * self.unit,
+            await self.robot.set_velocity(*self.speeds(left, right),
                                           self.timed_duration(left, right, duration, accel), accel)
         return await self.state()
 
     def timed_duration(self, left: float, right: float, duration: float, accel: float) -> float:
-        """How long hwbridge holds a timed motion so that it covers V·T (docs/webapi.md, timed
-        motion; measured by bench/timed_motion.py).
-
-        hwbridge changes a wheel's speed at most ``hwbridge.max_accel`` = a (2 m/s²); the old
-        server's steps were instant. A speed V set at once (no ``accel=``) thus takes V/a to
-        reach and covers V²/2a less: 4 % of V·T at 40 units for 1 s, 12 % at 90. A ramp of A
-        seconds steeper than a (V/A > a) is followed late on the way up and cut by the stop at
-        its end on the way down: (V - aA)²/2a less in all (V²/2a for A = 0; nothing for a ramp
-        gentler than a). Holding the speed that much longer gives it back. V is the faster
-        wheel's speed as hwbridge limits it (`max_wheel_speed`). An unramped motion then covers
-        V·`STOP_LEAD_S` more (the wheels coast on after the stop), which comes off too.
-        """
+        """How long hwbridge holds a timed motion so that it covers V·T (`timing.timed_duration`)."""
         hw = self.robot.config.hwbridge
-        speed = min(max(abs(left), abs(right)) * self.unit, hw.max_wheel_speed)
-        if speed == 0:
-            return duration
-        behind = max(0.0, speed - hw.max_accel * accel) ** 2 / (2 * hw.max_accel)  # m
-        lead = STOP_LEAD_S if accel == 0 else 0.0
-        return max(duration / 2, duration + behind / speed - lead)
+        return timing.timed_duration(left, right, duration, accel, unit=self.unit,
+                                     max_speed=hw.max_wheel_speed, max_accel=hw.max_accel)
 
     async def stop(self, request: web.Request) -> web.Response:
         """Answers once hwbridge has confirmed the stop: the board runs zero duty."""

@@ -5,12 +5,16 @@
 //   GET /bus/icefloe/<robot>/**?_rate=10  (Accept: text/event-stream): every key of the robot, at
 //                                          most 10 samples a second each, and its services' tokens
 //   GET /bus/log                          (event stream): every log line, in order
+//   (judge/state among them: the lap judge's lap in progress, shown when a judge runs)
 //   PUT /bus/cmd/twist, PUT /bus/cmd/stop: drive and stop
+//   PUT /bus/cmd/car                      : drive as the robot's virtual car ("as a car"); its
+//                                          state, car/state, comes with the robot's keys above
+// While the lab's TA holds the robot stopped (hw/hold), the page says so and does not drive.
 // Each event is {"key", "value", "encoding", "time"}; value is the message (schemas/json/).
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-let robot = null; // /page/robot.json: name, deadman_s, max_wheel_speed, camera size
+let robot = null; // /page/robot.json: name, deadman_s, max_wheel_speed, track, camera size, car
 
 function nameOf(key) {
   // "icefloe/sim/odom/pose" -> "odom/pose"
@@ -39,10 +43,11 @@ function link(up) {
 
 const shown = {
   battery: 0, // when power/battery last came: it has the state, hw/battery only the reading
-  trail: { odom: [], loc: [] },
+  trail: { odom: [], loc: [], car: [] },
   landmarks: new Map(), // stamp -> detected markers, to draw on the picture they came from
   lastLandmarks: [],
   services: new Set(),
+  held: false, // hw/hold: the lab's TA holds the robot stopped
 };
 
 function onSample(sample, kind) {
@@ -63,6 +68,9 @@ function onSample(sample, kind) {
     case "loc/pose":
       showPose("loc", v);
       break;
+    case "car/state":
+      showCar(v);
+      break;
     case "camera/landmarks":
       shown.landmarks.set(v.stamp, v.landmarks);
       shown.lastLandmarks = v.landmarks;
@@ -74,7 +82,59 @@ function onSample(sample, kind) {
     case "camera/image":
       showImage(v);
       break;
+    case "hw/hold":
+      showHold(v);
+      break;
+    case "judge/state":
+      showJudge(v);
+      break;
   }
+}
+
+function showHold(hold) {
+  // hwbridge says it at each change and once a second; while held it refuses every motion command.
+  shown.held = hold.held;
+  $("hold").hidden = !hold.held;
+  if (!hold.held) return;
+  const who = hold.owner_may_release ? "the lab's TA or its owner" : "the lab's TA";
+  $("hold").textContent = `held stopped by the lab's TA${hold.reason ? ": " + hold.reason : ""}`;
+  $("hold").title = `since ${new Date(hold.since / 1e6).toLocaleTimeString()}; driving is refused until ${who} releases it`;
+  if (drive.timer !== null) drive.stop("held by the lab's TA: stopped");
+  drive.show(`held by the lab's TA: driving is refused until ${who} releases it`);
+}
+
+function showJudge(state) {
+  // The lap judge's lap in progress (judge/state): time, penalties, the latest events.
+  $("judge-box").hidden = false;
+  $("judge-track").textContent = state.track;
+  $("judge-lap").textContent = state.lap ? String(state.lap) : "– (waiting at the start line)";
+  $("judge-time").textContent = state.lap_time.toFixed(1);
+  $("judge-penalties").textContent = state.penalties.toFixed(0);
+  $("judge-tyres").textContent = state.tyre_off;
+  $("judge-bogged").textContent = state.bogged;
+  $("judge-stops").textContent = state.ran_stop;
+  $("judge-best").textContent = state.laps
+    ? `${state.laps} laps done, best score ${state.best_score.toFixed(2)} s` : "";
+  $("judge-events").replaceChildren(
+    ...state.events.map((e) => {
+      const item = document.createElement("li");
+      item.className = e.penalty > 0 ? "penalty" : "";
+      item.textContent = e.penalty > 0 ? `${e.text} (+${e.penalty.toFixed(0)} s)` : e.text;
+      return item;
+    }),
+  );
+}
+
+function showCar(state) {
+  // hwbridge's virtual car: its steering after the rate limit, and its bicycle model's pose.
+  showPose("car", state);
+  $("car-steer").textContent = state.steer.toFixed(2);
+  $("car-steer-target").textContent = state.steer_target.toFixed(2);
+  $("car-v").textContent = state.v.toFixed(2);
+  const tan = Math.tan(Math.abs(state.steer));
+  $("car-radius").textContent = tan > 1e-6
+    ? `a circle of ${(robot.car.wheelbase / tan).toFixed(2)} m to the ${state.steer > 0 ? "left" : "right"}`
+    : "straight";
 }
 
 function deg(rad) {
@@ -105,7 +165,7 @@ function drawMap() {
   // The tracks of both poses, the robot as a triangle; the view grows to fit (at least ±1 m).
   const canvas = $("map");
   const g = canvas.getContext("2d");
-  const points = [...shown.trail.odom, ...shown.trail.loc];
+  const points = [...shown.trail.odom, ...shown.trail.loc, ...shown.trail.car];
   const reach = Math.max(1, ...points.map((p) => Math.max(Math.abs(p.x), Math.abs(p.y)) * 1.1));
   const scale = Math.min(canvas.width, canvas.height) / (2 * reach);
   const at = (p) => [canvas.width / 2 + p.x * scale, canvas.height / 2 - p.y * scale];
@@ -117,7 +177,7 @@ function drawMap() {
   g.moveTo(canvas.width / 2, 0);
   g.lineTo(canvas.width / 2, canvas.height);
   g.stroke();
-  for (const [which, colour] of [["odom", "#1f6fb5"], ["loc", "#d9730d"]]) {
+  for (const [which, colour] of [["odom", "#1f6fb5"], ["loc", "#d9730d"], ["car", "#2e8b57"]]) {
     const trail = shown.trail[which];
     if (!trail.length) continue;
     g.strokeStyle = colour;
@@ -209,12 +269,15 @@ const drive = {
   // The robot's deadman stops the wheels when no command came for deadman_s (0.5 s): while a
   // button or key is held, the page sends the twist every 100 ms, its heartbeat. When the page
   // is hidden, closed, frozen or cut off, the heartbeat stops, and so does the robot; we also
-  // send a stop at once whenever we can.
-  held: new Map(), // what is held (a button or a key) -> [v, w] direction
+  // send a stop at once whenever we can. As a car (carMode), the same pad sends cmd/car: ▲ ▼ the
+  // speed, ◀ ▶ the steering angle of the steering slider, left positive.
+  held: new Map(), // what is held (a button or a key) -> [v, w] direction (w: the steering, as a car)
+  carMode: false,
   timer: null,
   inFlight: 0,
 
   press(what, direction) {
+    if (shown.held) return this.show("held by the lab's TA: driving is refused until it is released");
     this.held.set(what, direction);
     if (this.timer === null) {
       this.timer = setInterval(() => this.beat(), 100);
@@ -235,15 +298,18 @@ const drive = {
       w += dw;
     }
     const speed = Number($("speed").value);
-    const twist = {
-      v: Math.max(-1, Math.min(1, v)) * speed,
-      w: (Math.max(-1, Math.min(1, w)) * 2 * speed) / robot.track, // turn with the wheels at ±speed
-    };
+    v = Math.max(-1, Math.min(1, v));
+    w = Math.max(-1, Math.min(1, w));
+    const [key, command, says] = this.carMode
+      ? ["cmd/car", { v: v * speed, steer: w * Number($("steer").value) },
+         (c) => `driving as a car: v ${c.v.toFixed(2)} m/s, steer ${c.steer.toFixed(2)} rad`]
+      : ["cmd/twist", { v: v * speed, w: (w * 2 * speed) / robot.track }, // turn with the wheels at ±speed
+         (c) => `driving: v ${c.v.toFixed(2)} m/s, w ${c.w.toFixed(2)} rad/s`];
     if (this.inFlight >= 2) return; // the bridge is slow: never pile up old commands
     this.inFlight += 1;
-    put("cmd/twist", twist)
-      // A twist answered after the stop must not say "driving" over "stopped".
-      .then(() => this.timer !== null && this.show(`driving: v ${twist.v.toFixed(2)} m/s, w ${twist.w.toFixed(2)} rad/s`))
+    put(key, command)
+      // A command answered after the stop must not say "driving" over "stopped".
+      .then(() => this.timer !== null && this.show(says(command)))
       .catch((error) => this.timer !== null && this.show(`not driving: ${error.message}`))
       .finally(() => (this.inFlight -= 1));
   },
@@ -296,6 +362,21 @@ function setUpDrivePad() {
   window.addEventListener("blur", () => drive.stop("page lost focus: stopped"));
   window.addEventListener("pagehide", () => drive.stop("page closed: stopped"));
   $("speed").addEventListener("input", () => ($("speed-value").textContent = $("speed").value));
+  $("steer").addEventListener("input", () => ($("steer-value").textContent = Number($("steer").value).toFixed(2)));
+  $("car-mode").addEventListener("change", () => setCarMode($("car-mode").checked));
+}
+
+function setCarMode(on) {
+  // Switching stops the robot: what was held was meant for the other mode.
+  if (drive.timer !== null) drive.stop(on ? "stopped: now driving as a car" : "stopped: now driving as a unicycle");
+  else drive.show(on ? "stopped (as a car: ▲ ▼ drive, ◀ ▶ steer)" : "stopped");
+  drive.carMode = on;
+  $("steer-box").hidden = !on;
+  $("car-state").hidden = !on;
+  const titles = on
+    ? { 1: "steer left (←)", "-1": "steer right (→)" }
+    : { 1: "turn left (←)", "-1": "turn right (→)" };
+  for (const button of document.querySelectorAll("#pad button[data-v='0']")) button.title = titles[button.dataset.w];
 }
 
 async function main() {
@@ -303,6 +384,11 @@ async function main() {
   document.title = `${robot.robot} · icefloe`;
   $("robot").textContent = robot.robot;
   $("speed").max = robot.max_wheel_speed;
+  $("steer").max = robot.car.max_steer; // in twelfths of it: full lock, half (the start), ...
+  $("steer").min = $("steer").step = robot.car.max_steer / 12;
+  $("steer").value = robot.car.max_steer / 2;
+  $("steer-value").textContent = Number($("steer").value).toFixed(2);
+  setCarMode($("car-mode").checked); // a reload keeps the box ticked
   setUpDrivePad();
   follow(`/bus/icefloe/${robot.robot}/**?_rate=10`, onSample);
   follow("/bus/log", onLog);
