@@ -24,8 +24,8 @@ pytestmark = pytest.mark.slow
 POSE = (1.0, 0.75, -0.785)
 """Where the robot stands: markers 1 and 0 in view, 1.25 and 2.19 m away, seen at 37 and 63 degrees from
 square on (the lab has no place that shows three markers between 0.6 and 2.2 m)."""
-HOLD_S = 4.0
-"""How long the pose is watched once both markers have been seen, s."""
+HOLD_S = 2.0
+"""How long the pose is watched once both markers have been seen, s (4 s gave the same medians to 0.01 cm)."""
 
 
 async def watch(robot) -> tuple[float, float]:
@@ -51,13 +51,14 @@ async def watch(robot) -> tuple[float, float]:
 
 @pytest.mark.timeout(300)
 async def test_the_localizer_at_rest_with_the_inset_undone(make_robot, tmp_path) -> None:
-    """Measured (2026-12-07, load 10-13, about 90 s for both runs): as detected 1.86 cm 0.47 deg, inset
-    undone 1.68 cm 0.59 deg. The issue's goal, within 1 cm, is not reached here: at this pose the
-    detector's range errors are per marker, not the inset alone (rendered frames at this pose, 30 frames:
-    marker 1 +1.78 cm as detected, +1.11 cm undone; marker 0, 63 degrees from square on, +0.23 cm as
-    detected, -2.44 cm undone: the inset of a marker seen this obliquely is not the mean one). At
-    (1.0, 0.0, 0.393), markers 2 and 1 at 1.0 and 1.56 m nearer square on: 0.46 cm as detected, 0.45 cm
-    undone."""
+    """Measured (2026-12-07, load 10-13, about 90 s for both runs, 4 s held): as detected 1.86 cm 0.47 deg,
+    inset undone 1.68 cm 0.59 deg; held 2 s (load 1-2, 6.8-7.9 s for both runs, 11.4 s when held 4 s):
+    1.87 cm 0.48 deg and 1.66-1.67 cm 0.59 deg, so the bounds (3.5 cm, 1.5 deg) are 2.1 and 2.5 times it.
+    The issue's goal, within 1 cm, is not reached here: at this pose the detector's range errors are per
+    marker, not the inset alone (rendered frames at this pose, 30 frames: marker 1 +1.78 cm as detected,
+    +1.11 cm undone; marker 0, 63 degrees from square on, +0.23 cm as detected, -2.44 cm undone: the inset
+    of a marker seen this obliquely is not the mean one). At (1.0, 0.0, 0.393), markers 2 and 1 at 1.0 and
+    1.56 m nearer square on: 0.46 cm as detected, 0.45 cm undone."""
     x, y, theta = POSE
     where = (f"[sim]\nstart_x = {x}\nstart_y = {y}\nstart_theta = {theta}\nseed = 3\n"
              f"[localizer]\ninitial_x = {x}\ninitial_y = {y}\ninitial_theta = {theta}\n")
