@@ -78,7 +78,7 @@ async def test_slam_maps_the_lab_from_rendered_frames_in_the_realistic_profile(m
     async with robot.node("tester") as node:
         tasks = [asyncio.create_task(collect(node.subscribe(topic, latest=False, maxsize=1024), into))
                  for topic, into in ((keys.TRUTH, truth), (keys.SLAM_MAP, maps))]
-        await wait_for(lambda: truth and maps, timeout=90)
+        await wait_for(lambda: truth and maps and maps[-1].landmarks, timeout=90)  # the camera's markers mapped
         driven = await drive(node, truth)
         stamp = truth[-1].stamp
         await wait_for(lambda: maps[-1].stamp >= stamp, timeout=30)
