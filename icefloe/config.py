@@ -179,7 +179,9 @@ class Camera(Section):
     marker_size: Positive = 0.12
     """Printed side of a marker's black square, m, for ids the world map does not list."""
     calibration: str = ""
-    """Calibration file (OpenCV YAML/JSON with camera_matrix, dist_coeffs); "" = nominal."""
+    """Calibration file (OpenCV YAML/JSON with camera_matrix, dist_coeffs, and what `icefloe calibrate`
+    measured of the marker detector and the capture latency); "" = nominal. A relative path is relative
+    to the config file that sets it."""
     focal_px: Positive = 500.0
     """Nominal focal length in pixels when there is no calibration file."""
     mount_x: float = 0.05
@@ -237,7 +239,8 @@ class Overhead(Section):
     dictionary: str = "DICT_4X4_100"
     """ArUco dictionary of the robots' top markers and the floor markers."""
     calibration: str = ""
-    """The camera's intrinsics (``icefloe calibrate``'s file); "" = nominal from ``focal_px``."""
+    """The camera's intrinsics (``icefloe calibrate``'s file); "" = nominal from ``focal_px``. A relative
+    path is relative to the config file that sets it."""
     focal_px: Positive = 410.0
     """Nominal focal length without a calibration file, pixels."""
     pose: str = ""
@@ -482,34 +485,99 @@ class Ros2(Section):
     """How often ``map`` is published again, s (volatile QoS: a ROS 2 user who joins later gets the next)."""
 
 
+Profile = Literal["realistic", "ideal"]
+"""How unkind the simulated robot is (``[sim] profile``; docs/sim.md has the table of effects)."""
+
+Fraction = Annotated[float, Meta(ge=0, le=1)]
+
+
 class Lens(Section):
     """The simulated camera's true lens: what `icefloe calibrate` measures (``[sim.lens]``).
 
     The camera service does not read it: it believes ``[camera]`` (``focal_px``, or its
-    ``calibration`` file), as it would on a real robot. Zeros mean "as the nominal camera".
+    ``calibration`` file), as it would on a real robot. A key left out takes the profile's value
+    (`icefloe.sim.realism`): the realistic profile's lens, or in the ideal profile the lens the
+    camera service believes. 0 means "as the nominal camera" (``focal_px``, centred, no distortion).
     """
 
-    fx: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    fx: Annotated[float, msgspec.Meta(ge=0)] | None = None
     """Focal length along x, pixels (0 = ``camera.focal_px``)."""
-    fy: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    fy: Annotated[float, msgspec.Meta(ge=0)] | None = None
     """Focal length along y, pixels (0 = fx)."""
-    cx: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    cx: Annotated[float, msgspec.Meta(ge=0)] | None = None
     """Principal point, pixels from the left edge (0 = the image centre)."""
-    cy: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    cy: Annotated[float, msgspec.Meta(ge=0)] | None = None
     """Principal point, pixels from the top edge (0 = the image centre)."""
-    distortion: Annotated[list[Annotated[float, msgspec.Meta(ge=-10, le=10)]], msgspec.Meta(max_length=5)] = \
-        msgspec.field(default_factory=list)
+    distortion: Annotated[list[Annotated[float, msgspec.Meta(ge=-10, le=10)]], msgspec.Meta(max_length=5)] | None \
+        = None
     """OpenCV distortion coefficients k1, k2, p1, p2[, k3] (empty = none)."""
+
+
+class SimWheels(Section):
+    """The simulated robot's true wheels and motors (``[sim.wheels]``): what a wheel calibration
+    measures. The robot's software believes ``[geometry]``; the simulator moves the robot with these.
+    A key left out takes the profile's value (`icefloe.sim.realism`, docs/sim.md)."""
+
+    diameter_left: Annotated[float, Meta(gt=0, le=1)] | None = None
+    """The left wheel's effective rolling diameter, m (ideal: ``geometry.wheel_diameter``)."""
+    diameter_right: Annotated[float, Meta(gt=0, le=1)] | None = None
+    """The right wheel's, m."""
+    track: Annotated[float, Meta(gt=0, le=2)] | None = None
+    """The effective distance between the wheels' contact points, m (ideal: ``geometry.track``)."""
+    slip_accel: Annotated[float, Meta(ge=0, le=0.5)] | None = None
+    """Fraction of a wheel's travel lost to slip per m/s² of its acceleration (starts and stops), s²/m."""
+    slip_turn: Annotated[float, Meta(ge=0, le=0.5)] | None = None
+    """Fraction of a turn lost to the wheels scrubbing sideways, per rad/s of turn rate, s/rad."""
+    dead_band_left: Annotated[float, Meta(ge=0, lt=100)] | None = None
+    """The left motor does not move at this PWM duty or less, %."""
+    dead_band_right: Annotated[float, Meta(ge=0, lt=100)] | None = None
+    """The right motor's dead band, %."""
+    battery_sag: bool | None = None
+    """The motors' speed follows the battery's voltage (false: always as at 7.4 V)."""
+
+
+class SimImage(Section):
+    """What the simulated camera's sensor and its pipeline do to a frame (``[sim.image]``).
+    A key left out takes the profile's value (`icefloe.sim.realism`, docs/sim.md)."""
+
+    exposure_s: Annotated[float, Meta(ge=0, le=0.5)] | None = None
+    """The exposure auto exposure needs where the arena's light is average (shutter time x analogue
+    gain), s; dimmer light needs more, bought as the Raspberry Pi camera does: a longer shutter (the
+    robot's motion smears the frame over it), then more gain (more noise). 0 = no motion blur."""
+    light_variation: Annotated[float, Meta(ge=0, lt=1)] | None = None
+    """How much less light the darkest part of the arena gets than the brightest (0 = even)."""
+    flicker: Annotated[float, Meta(ge=0, le=1)] | None = None
+    """Frame-to-frame brightness change, relative (0.15 = up to ±15 %)."""
+    noise: Annotated[float, Meta(ge=0, le=100)] | None = None
+    """Sensor noise at unit gain, standard deviation in grey levels (it grows with the gain)."""
+    blur_px: Annotated[float, Meta(ge=0, le=10)] | None = None
+    """The lens's own softness, Gaussian sigma, px."""
+    jpeg_quality: Annotated[int, Meta(ge=0, le=100)] | None = None
+    """Each frame JPEG-compressed and decoded at this quality (0 = not compressed)."""
+    latency_s: Annotated[float, Meta(ge=0, le=2)] | None = None
+    """From the exposure to the frame reaching the camera service, on average, s (the frame's stamp
+    is when it arrives, as a real camera's source stamps it)."""
+    latency_jitter_s: Annotated[float, Meta(ge=0, le=1)] | None = None
+    """Standard deviation of that latency, s."""
+    drop_rate: Annotated[float, Meta(ge=0, le=1)] | None = None
+    """Fraction of frames the pipeline loses."""
 
 
 class Sim(Section):
     world: str = "lab"
     """The simulated world: a world name or a path, as `Localizer.world`."""
+    profile: Profile = "ideal"
+    """"realistic": the wheels, the lens and the pictures of a real PenguinPi, each effect a key of
+    ``[sim.wheels]``, ``[sim.lens]`` and ``[sim.image]``; "ideal": the robot is exactly what its config
+    says (``[geometry]``, the camera's own calibration), for debugging (docs/sim.md). The default is
+    still "ideal": the suite's figures are measured in it; "realistic" becomes the default once they
+    are re-measured in it (issue 36)."""
     seed: Annotated[int, Meta(ge=0)] = 0
-    """Random seed for slip and noise (0 = pick one and print it)."""
-    slip: Annotated[float, Meta(ge=0, le=1)] = 0.0
-    """Relative wheel slip noise (0 = none)."""
-    encoder_noise: NonNegative = 0.0
+    """Random seed of every effect: slip, noise, light, latency (0 = pick one and print it)."""
+    slip: Fraction | None = None
+    """Random wheel slip: relative std dev of ground travel vs rim travel per 1 ms step."""
+    encoder_noise: NonNegative | None = None
+    """Relative std dev of counted vs turned wheel angle per 1 ms step."""
     truth_rate_hz: Hz = 50.0
     start_x: float = 0.0
     """Where the simulated robot stands at start, world frame, m (robots of a simulated lab apart)."""
@@ -524,7 +592,11 @@ class Sim(Section):
     """icoboard = "gateware": the FPGA clock in the simulation, Hz (the board's is 100 MHz;
     scaled down so the simulation keeps real time)."""
     lens: Lens = Lens()
-    """The simulated camera's true lens (defaults: the nominal camera of ``[camera]``)."""
+    """The simulated camera's true lens."""
+    wheels: SimWheels = SimWheels()
+    """The simulated robot's true wheels and motors."""
+    image: SimImage = SimImage()
+    """The simulated camera's sensor and pipeline."""
 
 
 class Webapi(Section):
@@ -726,11 +798,27 @@ def _anchor_programs(data: dict[str, Any], folder: Path) -> None:
             program["cwd"] = str(cwd if cwd.is_absolute() else folder / cwd)
 
 
+CALIBRATION_KEYS = (("camera", "calibration"), ("overhead", "calibration"))
+"""Files a config names that belong beside it: a relative path is relative to the file that sets it."""
+
+
+def _anchor_files(data: dict[str, Any], folder: Path) -> None:
+    """Make each relative `CALIBRATION_KEYS` path of one file relative to that file's folder, before
+    files are merged (the shipped ``sim.toml`` names ``sim.camera.yaml`` beside it)."""
+    for table, key in CALIBRATION_KEYS:
+        section = data.get(table)
+        value = section.get(key) if isinstance(section, dict) else None
+        if isinstance(value, str) and value and "{" not in value:
+            path = Path(value).expanduser()
+            section[key] = str(path if path.is_absolute() else folder / path)
+
+
 def _read(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
     if path in seen:
         raise ConfigError(f"{path}: `extends` loops back to itself")
     data = read_toml(path)
     _anchor_programs(data, path.parent)
+    _anchor_files(data, path.parent)
     parent = data.pop("extends", None)
     if parent is None:
         return data

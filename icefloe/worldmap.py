@@ -160,7 +160,10 @@ class Board(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     marker: float = 0.0
     """ChArUco: side of each ArUco marker, m (less than ``square``)."""
     dictionary: str = "DICT_5X5_100"
-    """ChArUco: the markers' dictionary (not the landmarks': the localizer must not take them for landmarks)."""
+    """ChArUco: the markers' dictionary. Not the landmarks' ids: the localizer must not take them for
+    landmarks (another dictionary, or the landmarks' with a ``first_id`` beyond the world's)."""
+    first_id: Annotated[int, msgspec.Meta(ge=0, le=999)] = 0
+    """ChArUco: the id of its first marker (the others follow)."""
 
     def __post_init__(self) -> None:
         check_finite(self, ("square", "x", "y", "z", "yaw", "tilt", "marker"))

@@ -441,6 +441,10 @@ class Truth(Message):
     """Simulated seconds since the simulator started, when this pose was true (its 1 kHz clock:
     exact where a busy machine makes it drop steps and the wall clock is not; 0 = not given). The
     lap judge times laps by it."""
+    v: float = 0.0
+    """True speed, m/s, forward (over the simulator's last 1 ms step)."""
+    w: float = 0.0
+    """True turn rate, rad/s, CCW."""
 
 
 # --------------------------------------------------------------------------- maps of landmarks
@@ -651,6 +655,9 @@ class CameraInfo(Message):
     source: str
     """Where the calibration came from: the calibration file's path, or "nominal" (``camera.focal_px``,
     no distortion: the camera was never calibrated)."""
+    capture_latency_s: float = 0.0
+    """Taken off every frame's stamp (and so off ``camera/landmarks``' and the images'), s: the time
+    from a frame's exposure to its arrival, as the calibration measured it (0: none measured)."""
 
 
 class Landmark(Message):

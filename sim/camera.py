@@ -26,6 +26,15 @@ the frame is drawn through an ideal pinhole onto a larger canvas, then bent with
 ``cv2.remap`` as the lens would bend it. The simulator's true lens is ``[sim.lens]``
 (`true_intrinsics`), which the camera service does not know: that is what
 ``icefloe calibrate`` measures.
+
+With a `Picture` of the realistic profile (`icefloe.sim.realism`), the light varies over the room
+(each marker, board and obstacle face as bright as the light where it is, against the light where
+the camera looks), and `sim.sensor` makes the camera's picture: motion blur from the turn rate
+during the shutter auto exposure chose, the lens's softness, noise that grows with the gain, JPEG.
+Without one (the ideal profile) the frame is finished as it always was: flicker, noise, blur.
+A track's world is drawn in colour in both: with a realistic picture its floor and road are as
+bright as the light where the robot stands, its signs as the light where they stand, and the
+sensor's blur, noise and JPEG work on the three channels.
 """
 
 from __future__ import annotations
@@ -43,7 +52,9 @@ from icefloe.vision import calibration
 from icefloe.vision.geometry import Intrinsics, Mount, range_bearing
 from icefloe.worldmap import Board, WorldMap, load_world
 
+from . import realism
 from .floor import shared_floor_texture, stop_sign_texture
+from .sensor import LightField, Sensor
 
 NEAR = 0.02
 """Points closer than this in front of the lens (m) are not drawn."""
@@ -117,7 +128,7 @@ def board_texture(board: Board, cell_px: int) -> np.ndarray:
     w, h = (board.columns + 2) * cell_px, (board.rows + 2) * cell_px
     if board.kind == "charuco":
         printed = calibration.Board(board.columns, board.rows, board.square, "charuco", board.marker,
-                                    board.dictionary)
+                                    board.dictionary, board.first_id)
         return printed.charuco().generateImage((w, h), marginSize=cell_px)
     squares = (np.add.outer(np.arange(board.rows), np.arange(board.columns)) % 2) * 255  # black top-left
     inner = np.kron(squares, np.ones((cell_px, cell_px))).astype(np.uint8)
@@ -166,13 +177,31 @@ def clip_near(polygon: np.ndarray) -> np.ndarray:
 
 
 def true_intrinsics(config: RobotConfig) -> Intrinsics:
-    """The simulated camera's true lens, ``[sim.lens]`` over the nominal camera of ``[camera]``."""
-    cam, lens = config.camera, config.sim.lens
-    fx = lens.fx or cam.focal_px
-    k = np.array([[fx, 0.0, lens.cx or (cam.width - 1) / 2], [0.0, lens.fy or fx, lens.cy or (cam.height - 1) / 2],
+    """The simulated camera's true lens: ``[sim.lens]``, else its profile's (`icefloe.sim.realism`):
+    the realistic lens, or in the ideal profile the lens the camera service believes (its
+    calibration file, or the nominal camera of ``[camera]``). A 0 is the nominal camera's value."""
+    cam, lens = config.camera, realism.lens(config)
+    believed = Intrinsics.from_config(cam) if realism.NOMINAL in lens.values() else None
+    nominal = Intrinsics.nominal(cam.focal_px, cam.width, cam.height)
+
+    def key(name: str, row: int, col: int, zero: float) -> float:
+        v = lens[name]
+        if v == realism.NOMINAL:
+            assert believed is not None
+            return float(believed.camera_matrix[row, col])
+        return float(v) or zero
+
+    fx = key("fx", 0, 0, cam.focal_px)
+    k = np.array([[fx, 0.0, key("cx", 0, 2, nominal.camera_matrix[0, 2])],
+                  [0.0, key("fy", 1, 1, fx), key("cy", 1, 2, nominal.camera_matrix[1, 2])],
                   [0.0, 0.0, 1.0]])
     dist = np.zeros(5)
-    dist[:len(lens.distortion)] = lens.distortion[:5]
+    if lens["distortion"] == realism.NOMINAL:
+        assert believed is not None
+        given = list(believed.dist_coeffs.ravel())
+    else:
+        given = list(lens["distortion"])
+    dist[:min(len(given), 5)] = given[:5]
     return Intrinsics(k, dist, cam.width, cam.height)
 
 
@@ -213,9 +242,12 @@ class CameraRenderer:
         noise: float = 3.0,
         lighting: float = 0.15,
         blur: float = 0.0,
+        picture: realism.Picture | None = None,
     ) -> None:
         """``noise``: pixel noise, standard deviation in grey levels; ``lighting``: relative
-        frame-to-frame brightness change (0.15 = up to ±15 %); ``blur``: Gaussian blur sigma, px."""
+        frame-to-frame brightness change (0.15 = up to ±15 %); ``blur``: Gaussian blur sigma, px.
+        ``picture``: the camera's effects (`icefloe.sim.realism`); one that is not `Picture.plain`
+        replaces the three above with the light, auto exposure and sensor of `sim.sensor`."""
         self.world, self.k, self.mount = world, intrinsics.camera_matrix, mount
         self.dist = np.asarray(intrinsics.dist_coeffs, dtype=float)
         self.width, self.height = intrinsics.width, intrinsics.height
@@ -262,17 +294,38 @@ class CameraRenderer:
         self._sign_normals = np.array([normal for _, _, normal in sign_axes]).reshape(-1, 3)
         self._sign_centres = self._sign_quads.mean(axis=1) if len(signs) else np.zeros((0, 3))
         self._sign_textures: dict[int, np.ndarray] = {}
+        self._light: LightField | None = None
+        self._sensor: Sensor | None = None
+        if picture is not None and not picture.plain:
+            self._light = LightField(world, picture.light_variation, self._rng)
+            self._sensor = Sensor(picture, float(self.k[0, 0]), self.width, self.height, self._rng,
+                                  colour=self._colour)
+            self._marker_light = self._light.at(self._centres[:, :2])
+            self._board_light = self._light.at(self._board_centres[:, :2])
+            self._obstacle_light = self._light.at(self._obstacle_centres[:, :2])
+            self._sign_light = self._light.at(self._sign_centres[:, :2])
+            self._noise_bank: list[np.ndarray] = []
+            return
+        if picture is not None:
+            self.noise, self.lighting, self.blur = picture.noise, picture.flicker, picture.blur_px
+            noise = picture.noise
         # A bank of noise images drawn once: drawing 300 k normals per frame would cost more
         # than the whole rest of the render.
         shape = (self.height, self.width, 3) if self._colour else (self.height, self.width)
         self._noise_bank = [self._rng.normal(0.0, noise, shape).astype(np.int16) for _ in range(8)]
 
     @classmethod
-    def of_robot(cls, config: RobotConfig) -> CameraRenderer:
+    def of_robot(cls, config: RobotConfig, seed: int = 1) -> CameraRenderer:
         """The simulated camera of a robot: its world ``sim.world``, the camera's mount and dictionary,
-        and the lens ``[sim.lens]``, not what ``[camera]`` believes (calibrating must find it)."""
+        the lens ``[sim.lens]`` (not what ``[camera]`` believes: calibrating must find it) and the
+        picture of its profile (`icefloe.sim.realism`); ``seed`` for the light, noise and flicker."""
         return cls(load_world(config.sim.world), true_intrinsics(config), Mount.from_config(config.camera),
-                   config.camera.dictionary)
+                   config.camera.dictionary, seed=seed, picture=realism.picture(config))
+
+    @property
+    def exposure(self) -> tuple[float, float]:
+        """The last frame's shutter time (s) and analogue gain (0, 1 without a realistic picture)."""
+        return (self._sensor.shutter_s, self._sensor.gain) if self._sensor else (0.0, 1.0)
 
     # ------------------------------------------------------------------ drawing
 
@@ -342,12 +395,15 @@ class CameraRenderer:
             cell_px *= 2
         return cell_px
 
-    def _draw(self, image: np.ndarray, marker_id: int, quad: np.ndarray, black: np.ndarray) -> None:
-        """Warp one marker's texture onto ``quad`` (4x2 px), touching only its bounding box."""
+    def _draw(self, image: np.ndarray, marker_id: int, quad: np.ndarray, black: np.ndarray,
+              light: float = 1.0) -> None:
+        """Warp one marker's texture onto ``quad`` (4x2 px), touching only its bounding box, as bright
+        as ``light`` (its light over the light auto exposure is set for)."""
         side_px = max(np.linalg.norm(black[1] - black[0]), np.linalg.norm(black[3] - black[0]))
-        self._warp(image, self._texture(marker_id, self._mip(side_px, self._cells)), quad)
+        tex = self._texture(marker_id, self._mip(side_px, self._cells))
+        self._warp(image, tex if light == 1.0 else cv2.convertScaleAbs(tex, alpha=light), quad)
 
-    def _draw_board(self, image: np.ndarray, index: int, quad: np.ndarray) -> None:
+    def _draw_board(self, image: np.ndarray, index: int, quad: np.ndarray, light: float = 1.0) -> None:
         """Draw board ``index`` onto ``quad``, anti-aliased: warped at `BOARD_SUPERSAMPLE` times the
         resolution, then averaged down. Its corners land within 0.05 px of the truth, and a ChArUco
         board's marker bits stay readable (a plain warp aliases both)."""
@@ -369,6 +425,8 @@ class CameraRenderer:
         if tex is None:
             tex = board_texture(board, cell_px)
             self._board_textures.put((index, cell_px), tex)
+        if light != 1.0:
+            tex = cv2.convertScaleAbs(tex, alpha=light)
         self._warp(big, tex, big_quad)
         image[y0:y1, x0:x1] = cv2.resize(big, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
 
@@ -407,11 +465,14 @@ class CameraRenderer:
         return mask.view(bool)
 
     def _draw_obstacles(self, image: np.ndarray, to_camera: Callable[[np.ndarray], np.ndarray],
-                        lens: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray | None:
+                        lens: np.ndarray, world_from_camera: np.ndarray,
+                        light: np.ndarray | None = None) -> np.ndarray | None:
         """Paint the obstacles' faces that turn towards the lens, the nearest one on each pixel;
-        return the depth buffer they leave (1/depth per canvas pixel, 0 where none), None if none."""
+        return the depth buffer they leave (1/depth per canvas pixel, 0 where none), None if none.
+        ``light``: each face's brightness (its light over the light auto exposure is set for)."""
         if not len(self._obstacles):
             return None
+        greys = self._obstacle_greys if light is None else (self._obstacle_greys * light).clip(0, 255).astype(np.uint8)
         facing = np.einsum("ij,ij->i", self._obstacle_normals, lens - self._obstacle_centres) > 0
         corners_c = to_camera(self._obstacles)
         normals_c = self._obstacle_normals @ world_from_camera
@@ -431,7 +492,7 @@ class CameraRenderer:
             drawn &= nearer > seen
             np.copyto(seen, nearer, where=drawn)  # copyto: masked indexing costs several times more
             where = drawn[..., None] if image.ndim == 3 else drawn
-            np.copyto(image[y0:y1, x0:x1], self._obstacle_greys[i], where=where)
+            np.copyto(image[y0:y1, x0:x1], greys[i], where=where)
         return depth
 
     def _hidden(self, depth: np.ndarray | None, quad: np.ndarray, normal: np.ndarray,
@@ -500,8 +561,9 @@ class CameraRenderer:
         show = ahead[top:] & (warped[..., 3] > 127)
         np.copyto(image[top:], warped[..., :3], where=show[..., None])
 
-    def _draw_sign(self, image: np.ndarray, quad: np.ndarray) -> None:
-        """Warp a stop sign's face onto ``quad`` (4x2 canvas px), only inside its octagon."""
+    def _draw_sign(self, image: np.ndarray, quad: np.ndarray, light: float = 1.0) -> None:
+        """Warp a stop sign's face onto ``quad`` (4x2 canvas px), only inside its octagon, as bright as
+        ``light`` (its light over the light auto exposure is set for)."""
         box = self._bbox(quad)
         if box is None:
             return
@@ -516,7 +578,8 @@ class CameraRenderer:
         h = cv2.getPerspectiveTransform(src, np.float32(quad - [x0, y0]))
         warped = cv2.warpPerspective(tex, h, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
-        np.copyto(image[y0:y1, x0:x1], warped[..., :3], where=warped[..., 3:] > 127)
+        face = warped[..., :3] if light == 1.0 else cv2.convertScaleAbs(warped[..., :3], alpha=light)
+        np.copyto(image[y0:y1, x0:x1], face, where=warped[..., 3:] > 127)
 
     # ------------------------------------------------------------------ the frame
 
@@ -528,11 +591,21 @@ class CameraRenderer:
         lens = np.array([x, y, 0.0]) + world_from_robot @ [self.mount.x, self.mount.y, self.mount.z]
         return world_from_robot, lens, world_from_robot @ self.mount.robot_from_camera()
 
-    def render(self, x: float, y: float, theta: float) -> tuple[np.ndarray, list[Visible]]:
+    def render(self, x: float, y: float, theta: float, turn_rate: float = 0.0) -> tuple[np.ndarray, list[Visible]]:
         """One BGR frame (height x width x 3, uint8) seen from the robot at pose (x m, y m, theta rad),
-        and the markers fully inside it."""
+        turning at ``turn_rate`` rad/s (motion blur, with a realistic picture), and the markers fully
+        inside it."""
         world_from_robot, lens, world_from_camera = self._camera(x, y, theta)
         robot_origin = np.array([x, y, 0.0])
+        # Auto exposure is set for the light where the camera looks (a metre ahead); everything is as
+        # bright as its own light against that.
+        marker_light = board_light = obstacle_light = sign_light = None
+        floor_light = 1.0  # the floor's (and a track's road's) light: where the robot stands
+        if self._light is not None:
+            view = self._light.at(lens[:2] + world_from_camera[:2, 2])[0]
+            marker_light, board_light = self._marker_light / view, self._board_light / view
+            obstacle_light, sign_light = self._obstacle_light / view, self._sign_light / view
+            floor_light = float(self._light.at(lens[:2])[0] / view)
 
         def to_camera(points_world: np.ndarray) -> np.ndarray:
             return (points_world - lens) @ world_from_camera  # row vectors: R^T (p - lens)
@@ -558,7 +631,9 @@ class CameraRenderer:
         image = self._background.copy()
         if self._track is not None:
             self._draw_floor(image, lens, world_from_camera)
-        depth = self._draw_obstacles(image, to_camera, lens, world_from_camera)
+        if floor_light != 1.0:
+            cv2.convertScaleAbs(image, dst=image, alpha=floor_light)
+        depth = self._draw_obstacles(image, to_camera, lens, world_from_camera, obstacle_light)
         normals_c = self._normals @ world_from_camera
         visible: list[Visible] = []
         for _, kind, i in sorted(drawn, reverse=True):
@@ -566,7 +641,7 @@ class CameraRenderer:
                 quad = self._project(signs_c[i])
                 hidden = self._hidden(depth, quad, self._sign_normals[i] @ world_from_camera, signs_c[i, 0])
                 before = self._copy(image, hidden)
-                self._draw_sign(image, quad)
+                self._draw_sign(image, quad, 1.0 if sign_light is None else float(sign_light[i]))
                 if hidden is not None and before is not None:
                     self._restore(image, before, *hidden)
                 continue
@@ -574,7 +649,7 @@ class CameraRenderer:
                 quad = self._project(boards_c[i])
                 hidden = self._hidden(depth, quad, self._board_normals[i] @ world_from_camera, boards_c[i, 0])
                 before = self._copy(image, hidden)
-                self._draw_board(image, i, quad)
+                self._draw_board(image, i, quad, 1.0 if board_light is None else float(board_light[i]))
                 if hidden is not None and before is not None:
                     self._restore(image, before, *hidden)
                 continue
@@ -582,7 +657,8 @@ class CameraRenderer:
             quiet = self._project(quiet_c[i])
             hidden = self._hidden(depth, quiet, normals_c[i], black_c[i, 0])
             before = self._copy(image, hidden)
-            self._draw(image, marker.id, quiet, self._project(black_c[i]))
+            self._draw(image, marker.id, quiet, self._project(black_c[i]),
+                       1.0 if marker_light is None else float(marker_light[i]))
             covered = False
             if hidden is not None and before is not None:
                 self._restore(image, before, *hidden)
@@ -597,6 +673,8 @@ class CameraRenderer:
                                        math.acos(min(1.0, cos_inc)), black))
         if self._lens_maps is not None:
             image = cv2.remap(image, *self._lens_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if self._sensor is not None and self._light is not None:
+            return self._sensor.expose(image, turn_rate, float(view), self._light.mean), visible
         return self._finish(image), visible
 
     @staticmethod

@@ -21,6 +21,13 @@ voltage) is interpolated between those two with the wheel's lag behind its
 steady speed, and scaled with the duty: a stalled wheel at full duty draws
 250 mA, a free-running one 190 mA.
 
+True wheels (`icefloe.sim.realism.Wheels`, from ``[sim.wheels]`` and ``[sim] profile``): the
+encoders count the wheels' turns (``geometry.ticks_per_rev`` a turn), but the ground a turn covers
+is the true wheel's circumference, left and right each their own, and the heading follows the true
+track. A wheel slips when it accelerates (its ground travel is short by ``slip_accel`` x |a|), the
+robot turns less than its wheels say in a fast turn (by ``slip_turn`` x |w|), and each motor has
+its own dead band. With no `Wheels` (or the ideal profile's) the robot is exactly ``[geometry]``.
+
 Obstacles (a world's ``[[obstacle]]`` tables, `icefloe.worldmap`): the robot is a disc of
 ``geometry.radius``. A step that would take it deeper into an obstacle does not happen: the
 robot stays where it was, its wheels stand still (they do not count: a robot pushing a wall
@@ -42,10 +49,12 @@ from icefloe.angles import wrap_angle
 from icefloe.config import Geometry
 from icefloe.worldmap import Obstacle, clearance
 
+from .realism import Wheels
+
 SLOPE_COUNTS_PER_PCT = 11.5
 """Steady encoder rate per percent of PWM duty, counts/s per % (report Fig. 4)."""
 DEAD_BAND_PCT = 9.0
-"""No motion at this PWM percentage or less (report §3.2.2)."""
+"""No motion at this PWM percentage or less (report §3.2.2); `Wheels` may give each motor its own."""
 NOMINAL_VOLTAGE = 7.4
 """Battery voltage at which the slope above holds, V (2S lithium nominal)."""
 MOTOR_TAU = 0.1
@@ -82,10 +91,12 @@ class World:
 
     def __init__(self, geometry: Geometry, *, seed: int = 0, slip: float = 0.0,
                  encoder_noise: float = 0.0, obstacles: tuple[Obstacle, ...] = (),
+                 wheels: Wheels | None = None,
                  motor_tau: float = MOTOR_TAU, counts_per_pct: float = SLOPE_COUNTS_PER_PCT) -> None:
         """``slip``: relative std dev of ground travel vs rim travel per step (0 = none).
         ``encoder_noise``: relative std dev of counted vs turned wheel angle per step.
         ``seed``: random seed for both; 0 picks one and prints it so a run can be repeated.
+        ``wheels``: the true wheels and motors (None: exactly ``geometry``, dead band 9 %).
         ``motor_tau``, ``counts_per_pct``: another motor than the report's (`MOTOR_TAU`,
         `SLOPE_COUNTS_PER_PCT`), to see what depends on the motor (bench/timed_motion_model.py).
         """
@@ -101,19 +112,25 @@ class World:
         self.seed = seed
         self._rng = random.Random(seed)
         self.geometry = geometry
+        self.wheels = wheels or Wheels(geometry.wheel_diameter, geometry.wheel_diameter, geometry.track)
         self.slip = slip
         self.encoder_noise = encoder_noise
         self._lock = threading.Lock()
-        # m of rim travel per encoder count
+        # m of rim travel per encoder count, as the robot's config believes its wheels
         self._m_per_count = math.pi * geometry.wheel_diameter / geometry.ticks_per_rev
+        # ground travel per m of that rim travel: the true wheel's size over the believed one's
+        self._roll = (self.wheels.diameter_left / geometry.wheel_diameter,
+                      self.wheels.diameter_right / geometry.wheel_diameter)
+        self._dead_band = (self.wheels.dead_band_left, self.wheels.dead_band_right)
         self._duty = [0.0, 0.0]
         self._peak = 0.0                     # largest |duty| since `mark`
         self._zero_since = 0.0               # time since which both duties have been 0 (-1: driven)
         self._counts_changed = 0.0              # time of the last change of an encoder count
-        self._speed = [0.0, 0.0]             # rim speed, m/s
+        self._speed = [0.0, 0.0]             # rim speed, m/s (of the believed wheel: counts x _m_per_count)
         self._counts = [0.0, 0.0]            # fractional encoder position, counts
         self._stalled = [False, False]
         self._pose = (0.0, 0.0, 0.0)
+        self._velocity = (0.0, 0.0)          # true (v m/s, w rad/s) over the last step
         self._ocv = FULL_VOLTAGE             # open-circuit voltage, V
         self._rects = [o.rectangle() for o in obstacles]
         self._collided = False
@@ -177,12 +194,15 @@ class World:
 
     # ------------------------------------------------------------------ physics
 
-    def steady_speed(self, duty: float, volts: float | None = None) -> float:
-        """Rim speed the wheel settles at for ``duty`` at battery ``volts``, m/s."""
+    def steady_speed(self, duty: float, volts: float | None = None, wheel: int = 0) -> float:
+        """Rim speed wheel ``wheel`` (0 left, 1 right) settles at for ``duty`` at battery ``volts``, m/s
+        (of the wheel as ``geometry`` has it: encoder counts x its m per count)."""
         pct = abs(duty) * 100.0
-        if pct <= DEAD_BAND_PCT:
+        if pct <= self._dead_band[wheel]:
             return 0.0
         volts = self._terminal_voltage() if volts is None else volts
+        if not self.wheels.battery_sag:
+            volts = NOMINAL_VOLTAGE
         counts_per_s = self.counts_per_pct * pct * volts / NOMINAL_VOLTAGE
         return math.copysign(counts_per_s * self._m_per_count, duty)
 
@@ -196,24 +216,29 @@ class World:
             speed = [0.0, 0.0]
             noise = [0.0, 0.0]                # relative encoder error this step
             decay = math.exp(-dt / self.motor_tau)
+            ground = [0.0, 0.0]               # ground travel this step, m
             for i in range(2):
-                target = 0.0 if self._stalled[i] else self.steady_speed(self._duty[i], volts)
+                target = 0.0 if self._stalled[i] else self.steady_speed(self._duty[i], volts, i)
                 v0 = self._speed[i]
                 # Exact integral of a first-order lag over the step.
                 travel[i] = target * dt + (v0 - target) * self.motor_tau * (1.0 - decay)
                 speed[i] = target + (v0 - target) * decay
                 self._motor_current[i] = self._current(i, target, volts)
                 noise[i] = self._rng.gauss(0.0, self.encoder_noise) if self.encoder_noise else 0.0
-            ground = travel
+                # The true wheel's size, less what slips while it speeds up or slows down.
+                grip = 1.0 - min(1.0, self.wheels.slip_accel * abs(speed[i] - v0) / dt)
+                ground[i] = travel[i] * self._roll[i] * grip
             if self.slip:
-                ground = [d * (1.0 + self._rng.gauss(0.0, self.slip)) for d in travel]
-            pose = self._integrate(self._pose, ground[0], ground[1])
+                ground = [d * (1.0 + self._rng.gauss(0.0, self.slip)) for d in ground]
+            pose = self._integrate(self._pose, ground[0], ground[1], dt)
             if self._rects and self._blocked(pose):
                 speed, travel = [0.0, 0.0], [0.0, 0.0]   # against the obstacle: the wheels stand still
+                self._velocity = (0.0, 0.0)
                 if not self._collided:
                     self._collisions += 1
                 self._collided = True
             else:  # still in contact until clear by CONTACT_MARGIN: creeping along a wall is one collision
+                self._velocity = ((ground[0] + ground[1]) / 2.0 / dt, wrap_angle(pose[2] - self._pose[2]) / dt)
                 self._pose = pose
                 self._collided = self._collided and any(
                     clearance(r, pose[0], pose[1]) < self.geometry.radius + CONTACT_MARGIN for r in self._rects)
@@ -249,11 +274,14 @@ class World:
         return amps * duty * volts / NOMINAL_VOLTAGE
 
     def _integrate(self, pose: tuple[float, float, float], d_left: float,
-                   d_right: float) -> tuple[float, float, float]:
-        """Move along the circular arc that the two wheel travels (m) describe."""
+                   d_right: float, dt: float = 0.001) -> tuple[float, float, float]:
+        """Move along the circular arc that the two wheels' ground travels (m) describe over ``dt`` s,
+        on the true track, the turn short by what the wheels scrub away at its rate."""
         x, y, theta = pose
         ds = (d_left + d_right) / 2.0
-        dtheta = (d_right - d_left) / self.geometry.track
+        dtheta = (d_right - d_left) / self.wheels.track
+        if self.wheels.slip_turn:
+            dtheta *= max(0.0, 1.0 - self.wheels.slip_turn * abs(dtheta) / dt)
         if abs(dtheta) < 1e-12:
             x += ds * math.cos(theta)
             y += ds * math.sin(theta)
@@ -308,6 +336,7 @@ class World:
         with self._lock:
             self._pose = (float(x), float(y), wrap_angle(theta))
             self._speed = [0.0, 0.0]
+            self._velocity = (0.0, 0.0)
 
     def reset(self, pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         """The world as it started: the robot at ``pose`` (its start: the origin unless the robot
@@ -317,6 +346,7 @@ class World:
             self._pose = (float(pose[0]), float(pose[1]), wrap_angle(pose[2]))
             self._collided = False
             self._speed = [0.0, 0.0]
+            self._velocity = (0.0, 0.0)
             self._stalled = [False, False]
             self._ocv = FULL_VOLTAGE
 
@@ -327,9 +357,15 @@ class World:
 
     @property
     def wheel_speeds(self) -> tuple[float, float]:
-        """Rim speeds (left, right), m/s."""
+        """True rim speeds (left, right), m/s: the wheels' turning times their true size."""
         with self._lock:
-            return self._speed[0], self._speed[1]
+            return self._speed[0] * self._roll[0], self._speed[1] * self._roll[1]
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """The robot's true speed (m/s, forward) and turn rate (rad/s, CCW) over the last step."""
+        with self._lock:
+            return self._velocity
 
     @property
     def duty(self) -> tuple[float, float]:

@@ -130,3 +130,17 @@ def test_a_value_out_of_range_is_refused_naming_the_key(tmp_path: Path, toml: st
     with pytest.raises(ConfigError) as refused:
         config.load(path)
     assert str(refused.value) == f"{path}: {named}"
+
+
+def test_a_relative_calibration_file_is_beside_the_config_that_names_it(tmp_path: Path) -> None:
+    """A robot config that names ``cam.yaml`` means the file beside it, whichever file extends it and from
+    whatever folder it is loaded; an absolute path and a placeholder are left as they are."""
+    (tmp_path / "base").mkdir()
+    write(tmp_path / "base", '[camera]\ncalibration = "cam.yaml"\n[overhead]\ncalibration = "/abs/over.yaml"\n',
+          "base.toml")
+    mine = write(tmp_path, f'extends = "{tmp_path / "base" / "base.toml"}"\nname = "mine"\n')
+    cfg = config.load(mine)
+    assert cfg.camera.calibration == str(tmp_path / "base" / "cam.yaml")
+    assert cfg.overhead.calibration == "/abs/over.yaml"
+    own = write(tmp_path, '[camera]\ncalibration = "{run_dir}/cam.yaml"\n', "own.toml")
+    assert config.load(own).camera.calibration.endswith("/cam.yaml") and "{" not in config.load(own).camera.calibration

@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import msgspec
 import numpy as np
 import pytest
 
+from icefloe import config as config_mod
 from icefloe.sim import floor
-from icefloe.sim.camera import CameraRenderer
+from icefloe.sim.camera import CameraRenderer, true_intrinsics
 from icefloe.sim.floor import PAINT, SIGN_RED, edge_line_offset, floor_texture
 from icefloe.sim.overhead import OverheadRenderer
 from icefloe.track import parse_track
@@ -164,3 +166,49 @@ def test_the_lens_noise_and_blur_apply_to_the_road(world: WorldMap) -> None:
     assert bent_u < u - 10
     white = (lens.render(*START)[0][round(bent_v)] > np.array(PAINT) - 40).all(axis=1)
     assert white[round(bent_u)]
+
+
+def test_a_track_world_in_the_realistic_profile_gets_the_lens_light_blur_noise_and_jpeg() -> None:
+    """The realistic profile's effects apply to a track's colour frame as to a grey one: the road's
+    edge line is drawn where the true (barrel) lens puts it, not where a pinhole would; the frame
+    is still in colour (the grass); auto exposure chose a shutter; a turn smears the frame; the
+    picture repeats with its seed."""
+    config = config_mod.parse({"sim": {"profile": "realistic", "world": "track"}})
+    world = load_world(config.sim.world)
+    assert world.track is not None
+    real = CameraRenderer.of_robot(config, seed=3)
+    image, _ = real.render(*START)
+    assert image.shape == (480, 640, 3)
+    assert real.exposure[0] > 0  # a shutter time: auto exposure ran
+    # the same pose through the same lens without distortion: the pinhole's projection of the line
+    lens = true_intrinsics(config)
+    assert lens.dist_coeffs.ravel()[0] < 0  # barrel
+    pinhole = CameraRenderer(world, Intrinsics(lens.camera_matrix, np.zeros(5), 640, 480), MOUNT,
+                             noise=0.0, lighting=0.0)
+    line = (START[0] + 0.3, START[1] - edge_line_offset(world.track), 0.0)  # the right edge line
+    u, _ = pixel_of(pinhole, START, line)
+    bent_u, bent_v = pixel_of(real, START, line)
+    assert bent_u < u - 10  # barrel distortion pulls it towards the centre
+    row = image[round(bent_v)].astype(int).sum(axis=1)
+    # the line (white) where the lens puts it, brighter than the asphalt beside it; not where a pinhole would
+    assert row[round(bent_u)] > row[round(bent_u) - 40] + 200, (row[round(bent_u)], row[round(bent_u) - 40])
+    white = row > row[round(bent_u)] - 100
+    left = right = round(bent_u)  # the run of white pixels around the bent projection
+    while left > 0 and white[left - 1]:
+        left -= 1
+    while right < 639 and white[right + 1]:
+        right += 1
+    middle = (left + right) / 2  # measured: 589.5 for the lens's 589.0, the pinhole's 602.4
+    assert abs(middle - bent_u) < 3, (left, right, bent_u)
+    assert u - middle > 10, (left, right, u)
+    # colour: the rural tiles' grass is greener than it is red
+    _, g, r = image[240:].reshape(-1, 3).astype(int).T
+    assert ((g - r) > 40).sum() > 1000
+    # a turn at 1.5 rad/s during the shutter smears the frame sideways
+    turning, _ = CameraRenderer.of_robot(config, seed=3).render(*START, turn_rate=1.5)
+    sharp = cv2.Laplacian(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), cv2.CV_64F).var()
+    smeared = cv2.Laplacian(cv2.cvtColor(turning, cv2.COLOR_BGR2GRAY), cv2.CV_64F).var()
+    assert smeared < 0.7 * sharp
+    # seeded: the same seed the same picture (noise and JPEG included), another seed another
+    assert np.array_equal(CameraRenderer.of_robot(config, seed=3).render(*START)[0], image)
+    assert not np.array_equal(CameraRenderer.of_robot(config, seed=4).render(*START)[0], image)

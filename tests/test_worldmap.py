@@ -46,6 +46,12 @@ def test_bad_world_files_name_the_marker_and_key(tmp_path: Path, text: str, mess
     assert message in str(err.value), str(err.value)
 
 
-def test_the_calibration_world_stands_two_boards() -> None:
+def test_the_calibration_world_stands_three_boards() -> None:
+    """The chessboard, the ChArUco board, and the ChArUco board of the lab's own markers (ids 40-49 of
+    DICT_4X4_50, which the lab's map does not use) that measures the marker detector's inset."""
     world = load_world("calibration")
-    assert [b.kind for b in world.boards] == ["chessboard", "charuco"] and world.markers == ()
+    assert [b.kind for b in world.boards] == ["chessboard", "charuco", "charuco"] and world.markers == ()
+    lab_ids = {m.id for m in load_world("lab").markers}
+    lab_board = world.boards[2]
+    assert lab_board.dictionary == "DICT_4X4_50" and lab_board.first_id == 40
+    assert not lab_ids & set(range(40, 40 + lab_board.columns * lab_board.rows // 2))

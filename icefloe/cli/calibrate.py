@@ -3,7 +3,10 @@
 The views are full-resolution snapshots (``camera/snapshot``); the board is found and the
 intrinsics computed by OpenCV (``icefloe/vision/calibration.py``); the result is written as
 the calibration file the camera service reads (``[camera] calibration``), and the robot
-config is pointed at it.
+config is pointed at it. A ChArUco board printed with the robot's own marker dictionary also
+measures how far inside its squares the marker detector puts their corners; with ``--drive``,
+a slow turn back and forth in front of the board measures the capture latency. Both go into the
+same file; whatever was not measured this time is kept from the calibration the robot had.
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ from ..runtime import run_async
 from ..schemas import keys
 from ..schemas import messages as m
 from ..vision import calibration as cal
-from ..vision.geometry import Intrinsics, save_calibration
+from ..vision.aruco import aruco_dictionary
+from ..vision.geometry import CameraCalibration, Intrinsics, calibration_extras, save_calibration
 from .common import add_bus_arguments, bus_config
 
 DESCRIPTION = """\
@@ -42,7 +46,12 @@ each view; move the board (or the robot) between views: near and far, tilted eve
 in every part of the picture, its corners most of all. u drops the last view, q (or
 Ctrl-D) computes. --auto N captures N views without questions, each time the board is
 seen somewhere new; with --drive the robot turns and backs up by itself between them
-(stand the board about 0.5 m ahead of it, leaning back a little).
+(stand the board about 0.5 m ahead of it, leaning back a little), then turns slowly back
+and forth in front of it to measure the camera's latency.
+
+A ChArUco board printed with the robot's marker dictionary (--dictionary DICT_4X4_50) also
+measures the camera service's marker detector: how far inside each black square it puts
+the corners, which makes every range long until the camera service moves them out again.
 """
 MIN_VIEWS = 10
 """Interactive: views before q computes (fewer if the user insists twice)."""
@@ -52,6 +61,10 @@ AUTO_PERIOD_S = 0.5
 """--auto without --drive: time between snapshots, s."""
 GOOD_RMS_PX, POOR_RMS_PX = 0.5, 1.0
 """What an RMS reprojection error means: below 0.5 px good, above 1 px a view is probably bad."""
+SWAY_RATE, SWAY_S, SWAYS = 0.5, 0.8, 3
+"""--drive: the latency is measured turning at this many rad/s for this long one way, then the
+other, this many times (about 11° either side of where the board is in the middle of the picture;
+slower, the PenguinPi's wheels would hardly turn)."""
 SCAN_ROWS_M = (0.0, -0.1, -0.2, -0.3, -0.4)
 """--drive: the robot looks at the board from its start and from these many metres back ..."""
 SCAN_STEP_DEG, SCAN_MAX_DEG = 6.0, 30.0
@@ -67,7 +80,8 @@ def board_of(args: argparse.Namespace) -> cal.Board:
         raise IcefloeError(f"--squares: expected COLUMNSxROWS such as 10x7, got {args.squares!r}")
     marker = args.marker or (0.75 * args.square if args.board == "charuco" else 0.0)
     try:
-        return cal.Board(int(match[1]), int(match[2]), args.square, args.board, marker, args.dictionary)
+        return cal.Board(int(match[1]), int(match[2]), args.square, args.board, marker, args.dictionary,
+                         args.first_id)
     except ValueError as exc:
         raise IcefloeError(f"board: {exc}") from None
 
@@ -169,48 +183,94 @@ async def automatic(capture: Capture, wanted: int, timeout: float) -> None:
             await asyncio.sleep(AUTO_PERIOD_S)
 
 
-async def scan(capture: Capture, wanted: int) -> None:
-    """--drive: the robot looks at the board from a few places, then comes back to its start."""
-    robot = capture.robot
-    await robot.ready(keys.ODOM_POSE.name)
-    start = robot.pose
-    assert start is not None
+class Scan:
+    """--drive: the robot looks at the board from a few places (`views`), and can come back to its start."""
 
-    async def face(heading_deg: float) -> None:
-        here = robot.pose
-        assert here is not None
-        await robot.turn(math.remainder(start.theta + math.radians(heading_deg) - here.theta, math.tau))
+    def __init__(self, capture: Capture) -> None:
+        self.capture, self.robot = capture, capture.robot
+        self.backed = 0.0
+        self.start: m.Pose | None = None
 
-    backed = 0.0
+    async def face(self, heading_deg: float) -> None:
+        here, start = self.robot.pose, self.start
+        assert here is not None and start is not None
+        await self.robot.turn(math.remainder(start.theta + math.radians(heading_deg) - here.theta, math.tau))
 
-    async def back_to_start() -> None:
+    async def back_to_start(self) -> None:
         print("driving back to the start", flush=True)
-        await face(0)
-        if backed:
-            await robot.forward(-backed)
+        await self.face(0)
+        if self.backed:
+            await self.robot.forward(-self.backed)
 
-    # A stop, a blocked wheel or Ctrl-C ends the scan where the robot is: no driving back then.
-    for row in SCAN_ROWS_M:
-        if row != backed:
-            await face(0)
-            await robot.forward(row - backed)
-            backed = row
-        for side in (1, -1):
-            heading = 0.0 if side == 1 else -SCAN_STEP_DEG
-            while abs(heading) <= SCAN_MAX_DEG:
-                await face(heading)
-                view, image = await capture.look(newer_than=time.time_ns())
-                if view is not None and capture.is_new(view):
-                    capture.keep(view, image)
-                if len(capture.views) >= wanted:
-                    await back_to_start()
-                    return
-                if view is None and heading != 0:
-                    break  # the board has left the picture on this side
-                heading += side * SCAN_STEP_DEG
-    await back_to_start()
-    raise IcefloeError(f"calibrate --drive: {len(capture.views)} of {wanted} views after the whole scan: "
-                       f"stand the board about 0.5 m ahead of the robot, facing it; nothing written")
+    async def views(self, wanted: int) -> None:
+        """Views until ``wanted`` are kept. A stop, a blocked wheel or Ctrl-C ends the scan where the
+        robot is (no driving back then); not enough views drive back and raise."""
+        capture = self.capture
+        await self.robot.ready(keys.ODOM_POSE.name)
+        self.start = self.robot.pose
+        for row in SCAN_ROWS_M:
+            if row != self.backed:
+                await self.face(0)
+                await self.robot.forward(row - self.backed)
+                self.backed = row
+            for side in (1, -1):
+                heading = 0.0 if side == 1 else -SCAN_STEP_DEG
+                while abs(heading) <= SCAN_MAX_DEG:
+                    await self.face(heading)
+                    view, image = await capture.look(newer_than=time.time_ns())
+                    if view is not None and capture.is_new(view):
+                        capture.keep(view, image)
+                    if len(capture.views) >= wanted:
+                        return
+                    if view is None and heading != 0:
+                        break  # the board has left the picture on this side
+                    heading += side * SCAN_STEP_DEG
+        await self.back_to_start()
+        raise IcefloeError(f"calibrate --drive: {len(capture.views)} of {wanted} views after the whole scan: "
+                           f"stand the board about 0.5 m ahead of the robot, facing it; nothing written")
+
+    async def latency(self, intrinsics: Intrinsics) -> cal.LatencyFit | None:
+        """Turn slowly back and forth facing the board; fit the lag of the board's yaw in the frames
+        behind odometry's heading (`cal.fit_latency`), plus what the camera already takes off."""
+        robot, node = self.robot, self.robot.node
+        await self.face(0)
+        info: m.CameraInfo = await node.query(keys.CAMERA_INFO, m.Stop(), timeout=robot.timeout)
+        headings: list[tuple[int, float]] = []
+        frames: list[tuple[int, float]] = []
+        unwrapped = [0.0, 0.0]  # last raw heading, unwrapped heading
+
+        async def follow() -> None:
+            async for pose in node.subscribe(keys.ODOM_POSE, latest=False, maxsize=256):
+                if headings:
+                    unwrapped[1] += math.remainder(pose.theta - unwrapped[0], math.tau)
+                else:
+                    unwrapped[1] = pose.theta
+                unwrapped[0] = pose.theta
+                headings.append((pose.stamp, unwrapped[1]))
+
+        async def watch() -> None:
+            while True:
+                view, image = await self.capture.look()
+                fresh = not frames or image.stamp != frames[-1][0]
+                if fresh and view is not None and (yaw := cal.board_yaw(view, intrinsics)) is not None:
+                    frames.append((image.stamp, yaw))
+
+        print("turning slowly back and forth in front of the board: the camera's latency", flush=True)
+        tasks = [asyncio.create_task(follow()), asyncio.create_task(watch())]
+        try:
+            await asyncio.sleep(0.3)
+            for i in range(2 * SWAYS + 1):  # half a sway first, so it ends where it started
+                rate = SWAY_RATE if i % 2 == 0 else -SWAY_RATE
+                await robot.drive(0.0, rate, SWAY_S / 2 if i in (0, 2 * SWAYS) else SWAY_S)
+            await robot.stop()
+            await asyncio.sleep(0.3)
+        finally:
+            for task in tasks:
+                task.cancel()
+        fit = cal.fit_latency(frames, headings)
+        if fit is None:
+            return None
+        return cal.LatencyFit(fit.latency_s + info.capture_latency_s, fit.frames, fit.residual, fit.gain)
 
 
 # ---------------------------------------------------------------------- writing the result
@@ -283,6 +343,43 @@ def report(result: cal.Calibration, views: list[cal.View]) -> None:
         print(f"  view {worst + 1} fits worst ({result.view_errors[worst]:.2f} px): blurred, or the board bent?")
 
 
+def measured_extras(args: argparse.Namespace, config: RobotConfig, board: cal.Board, views: list[cal.View],
+                    result: cal.Calibration, latency: cal.LatencyFit | None) -> CameraCalibration:
+    """The marker inset and the capture latency to write: measured now, else the robot's calibration's."""
+    try:
+        before = calibration_extras(config.camera)
+    except ConfigError:
+        before = CameraCalibration()
+    inset = before.inset
+    bits = cv2.aruco.getPredefinedDictionary(aruco_dictionary(config.camera.dictionary)).markerSize
+    if board.kind != "charuco":
+        print("  marker corners: not measured (a chessboard has no markers; a ChArUco board of the robot's "
+              f"dictionary, {config.camera.dictionary}, measures them)")
+    elif cv2.aruco.getPredefinedDictionary(aruco_dictionary(board.dictionary)).markerSize != bits:
+        print(f"  marker corners: not measured (the board's markers, {board.dictionary}, are not like the robot's, "
+              f"{config.camera.dictionary}: print the board with those)")
+    elif (fit := cal.measure_inset(views, result)) is None:
+        print(f"  marker corners: not measured (fewer than {cal.MIN_INSET_SIGHTINGS} of the board's markers found)")
+    else:
+        inset = fit.inset
+        print(f"  marker corners: {inset.at(25):.3f} px inside the square at 25 px, {inset.at(60):.3f} px at 60 px "
+              f"(ranges {200 * inset.at(25) / 25:.1f} % and {200 * inset.at(60) / 60:.1f} % long, now undone; "
+              f"{fit.markers} markers of {fit.sides[0]:.0f}-{fit.sides[1]:.0f} px, {fit.residual:.3f} px about "
+              "the fit)")
+    latency_s = before.latency_s
+    if latency is not None:
+        if abs(abs(latency.gain) - 1.0) > 0.25:
+            print(f"  capture latency: not measured (the board's yaw turned {abs(latency.gain):.2f} times as much as "
+                  f"odometry's heading, not once: did the board or the robot slip?)")
+        else:
+            latency_s = max(0.0, latency.latency_s)
+            print(f"  capture latency: {latency_s * 1000:.0f} ms from exposure to arrival ({latency.frames} frames, "
+                  f"{math.degrees(latency.residual):.2f}° about the fit)")
+    elif args.drive:
+        print("  capture latency: not measured (too few frames of the board while turning)")
+    return CameraCalibration(inset, latency_s)
+
+
 async def run(args: argparse.Namespace, config: RobotConfig) -> int:
     board = board_of(args)
     if args.auto is not None and args.auto < 3:
@@ -303,33 +400,46 @@ async def run(args: argparse.Namespace, config: RobotConfig) -> int:
         assert capture.size is not None
         print(f"Calibrating the camera of robot {robot.name!r} ({capture.size[0]}x{capture.size[1]}) with "
               f"{board.describe()}.", flush=True)
+        scan = Scan(capture) if args.drive else None
         if args.auto is None:
             await interactive(capture, board)
-        elif args.drive:
-            await scan(capture, args.auto)
+        elif scan is not None:
+            await scan.views(args.auto)
         else:
             await automatic(capture, args.auto, args.auto_timeout)
-    width, height = capture.size
-    result = await asyncio.to_thread(cal.calibrate, capture.views, width, height)
+        width, height = capture.size
+        if (width, height) != (config.camera.width, config.camera.height) and not foreign:
+            if scan is not None:
+                await scan.back_to_start()
+            raise IcefloeError(f"the camera sends {width}x{height} frames but {config.source} says "
+                               f"{config.camera.width}x{config.camera.height} ([camera] width, height): the camera "
+                               f"service would refuse this calibration; nothing written")
+        if args.keep_intrinsics:
+            result = await asyncio.to_thread(cal.with_intrinsics, capture.views, Intrinsics.from_config(config.camera))
+        else:
+            result = await asyncio.to_thread(cal.calibrate, capture.views, width, height)
+        latency = None
+        if scan is not None:
+            latency = await scan.latency(result.intrinsics)
+            await scan.back_to_start()
     report(result, capture.views)
-    if (width, height) != (config.camera.width, config.camera.height) and not foreign:
-        raise IcefloeError(f"the camera sends {width}x{height} frames but {config.source} says "
-                           f"{config.camera.width}x{config.camera.height} ([camera] width, height): the camera "
-                           f"service would refuse this calibration; nothing written")
+    if args.keep_intrinsics:
+        print(f"  (the intrinsics the camera had, {config.camera.calibration or 'nominal'}: kept)")
+    extras = measured_extras(args, config, board, capture.views, result, latency)
     if args.dry_run:
         print("--dry-run: nothing written")
         return 0
     intrinsics = Intrinsics(result.intrinsics.camera_matrix, result.intrinsics.dist_coeffs, width, height)
     if foreign:
         calibration_file = Path(args.output).expanduser().resolve()
-        save_calibration(calibration_file, intrinsics, result.rms)
+        save_calibration(calibration_file, intrinsics, result.rms, extras)
         print(f"wrote {calibration_file} {sizes_note(intrinsics, config)}")
         print(f"On robot {robot_name!r}, set [camera] calibration to it in its config, "
               f"then restart its camera service.")
         return 0
     config_file, calibration_file = calibration_paths(config, args.output)
     calibration_file.parent.mkdir(parents=True, exist_ok=True)
-    save_calibration(calibration_file, intrinsics, result.rms)
+    save_calibration(calibration_file, intrinsics, result.rms, extras)
     point_config_at(config_file, calibration_file)
     print(f"wrote {calibration_file} {sizes_note(intrinsics, config)}")
     print(f"set [camera] calibration to it in {config_file}\n"
@@ -350,11 +460,17 @@ def register(verbs: argparse._SubParsersAction) -> None:
     p.add_argument("--marker", type=float, default=0.0, metavar="M",
                    help="ChArUco: side of a marker, m (default 3/4 of a square)")
     p.add_argument("--dictionary", default="DICT_5X5_100",
-                   help="ChArUco: the markers' dictionary (default DICT_5X5_100)")
+                   help="ChArUco: the markers' dictionary (default DICT_5X5_100; the robot's, e.g. DICT_4X4_50, "
+                        "also measures its marker detector)")
+    p.add_argument("--first-id", type=int, default=0, metavar="N", help="ChArUco: the id of the board's first marker")
+    p.add_argument("--keep-intrinsics", action="store_true",
+                   help="keep the camera matrix and distortion the camera has (its calibration, or nominal): "
+                        "measure only the marker detector and the latency")
     p.add_argument("--auto", type=int, metavar="N", help="no questions: capture N views, each when the board is "
                                                          "seen somewhere new")
     p.add_argument("--drive", action="store_true",
-                   help="with --auto: the robot turns and backs up by itself between views, then comes back")
+                   help="with --auto: the robot turns and backs up by itself between views, measures the camera's "
+                        "latency turning back and forth, then comes back")
     p.add_argument("--auto-timeout", type=float, default=120.0, metavar="S",
                    help="--auto without --drive: give up after this long (default 120 s)")
     p.add_argument("--output", metavar="FILE",

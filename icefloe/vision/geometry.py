@@ -101,8 +101,74 @@ def read_storage(path: Path, *, matrices: tuple[str, ...], numbers: tuple[str, .
         fs.release()
 
 
-def save_calibration(path: str | Path, intrinsics: Intrinsics, rms_px: float | None = None) -> None:
-    """Write a calibration file in the format `load_calibration` reads."""
+@dataclass(frozen=True)
+class MarkerInset:
+    """How far inside a marker's black square the detector puts its corners, px: ``px + px2 / side``
+    for a marker ``side`` pixels wide (measured by `icefloe calibrate` on a ChArUco board's markers;
+    docs/camera.md). Left uncorrected, the corners' inset makes every range long: about 2 x inset /
+    side, 1.5 % for a marker 25 px wide."""
+
+    px: float = 0.0
+    """The part that does not depend on the marker's size, px."""
+    px2: float = 0.0
+    """The part that shrinks as the marker grows in the picture, px² (px at a side of 1 px)."""
+
+    def at(self, side_px: float) -> float:
+        """The inset of a marker ``side_px`` pixels wide, px."""
+        return self.px + self.px2 / max(side_px, 1.0)
+
+    def undo(self, quad: np.ndarray) -> np.ndarray:
+        """The detected corners (4 x 2 px, in order round the square) moved out by the inset: each
+        edge moved out along its normal, each corner where two moved edges meet."""
+        if not (self.px or self.px2):
+            return quad
+        q = np.asarray(quad, dtype=float).reshape(4, 2)
+        edges = np.roll(q, -1, axis=0) - q                       # edge i from corner i to corner i + 1
+        side = float(np.linalg.norm(edges, axis=1).mean())
+        normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1) / np.linalg.norm(edges, axis=1)[:, None]
+        inward = ((q.mean(axis=0) - (q + edges / 2)) * normals).sum(axis=1) > 0
+        normals[inward] *= -1                                     # each one outward
+        inset = self.at(side)
+        out = q.copy()
+        for i in range(4):  # corner i is where edge i - 1 ends and edge i starts
+            n = np.array([normals[i - 1], normals[i]])
+            if abs(np.linalg.det(n)) > 1e-6:
+                out[i] = q[i] + np.linalg.solve(n, [inset, inset])
+        return out
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """What a calibration file holds besides the intrinsics (the nodes `icefloe calibrate` adds)."""
+
+    inset: MarkerInset = MarkerInset()
+    """The marker detector's corner inset (node ``marker_corner_inset``: px, px²)."""
+    latency_s: float = 0.0
+    """From a frame's exposure to its arrival with its stamp, s (node ``capture_latency_s``): the camera
+    service takes it off every frame's stamp."""
+
+
+def load_extras(path: str | Path) -> CameraCalibration:
+    """The `CameraCalibration` nodes of a calibration file (each 0 when missing: files written before
+    them stay good); `ConfigError` for a value that is not a finite number, or a negative latency."""
+    p = Path(path)
+    inset, latency = read_storage(p, matrices=("marker_corner_inset",), numbers=("capture_latency_s",))
+    values = [0.0, 0.0] if inset is None else [float(v) for v in np.asarray(inset).ravel()]
+    if len(values) != 2 or not all(np.isfinite(values)):
+        raise ConfigError(f"{p}: marker_corner_inset: expected two finite numbers (px, px²)")
+    if not (np.isfinite(latency) and 0.0 <= latency < 2.0):
+        raise ConfigError(f"{p}: capture_latency_s: expected seconds in [0, 2), got {latency}")
+    return CameraCalibration(MarkerInset(*values), float(latency))
+
+
+def calibration_extras(camera: Camera) -> CameraCalibration:
+    """The camera's `CameraCalibration`: from its calibration file, none without one."""
+    return load_extras(camera.calibration) if camera.calibration else CameraCalibration()
+
+
+def save_calibration(path: str | Path, intrinsics: Intrinsics, rms_px: float | None = None,
+                     extras: CameraCalibration | None = None) -> None:
+    """Write a calibration file in the format `load_calibration` (and `load_extras`) reads."""
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     try:
         fs.write("image_width", intrinsics.width)
@@ -111,6 +177,9 @@ def save_calibration(path: str | Path, intrinsics: Intrinsics, rms_px: float | N
         fs.write("dist_coeffs", intrinsics.dist_coeffs.reshape(1, -1))
         if rms_px is not None:
             fs.write("rms_reprojection_error_px", rms_px)
+        if extras is not None:
+            fs.write("marker_corner_inset", np.array([[extras.inset.px, extras.inset.px2]]))
+            fs.write("capture_latency_s", extras.latency_s)
     finally:
         fs.release()
 

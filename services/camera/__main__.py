@@ -5,8 +5,9 @@
   falls behind, the frames it never saw are dropped and counted, never queued.
 * Detection runs ``camera.detection_rate_hz`` times a second (0: on every frame it takes),
   whatever the image rate, and publishes ``camera/landmarks`` stamped with the frame's capture
-  time. It is the camera's main cost, about proportional to the frame's pixels times that rate:
-  a robot's config chooses it (docs/camera.md, "What the camera costs").
+  time (its arrival less the capture latency the calibration measured, if it did). It is the
+  camera's main cost, about proportional to the frame's pixels times that rate: a robot's config
+  chooses it (docs/camera.md, "What the camera costs").
 * ``camera/image``: a smaller JPEG at ``camera.image_rate_hz`` (the Wi-Fi is shared
   by a class); ``camera/snapshot``: one full-resolution JPEG of the latest frame.
 * ``camera/frames``: every captured frame as the smaller JPEG, sent by the capture thread
@@ -30,13 +31,13 @@ from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.vision.capture import Capture
-from icefloe.vision.geometry import Intrinsics
+from icefloe.vision.geometry import Intrinsics, calibration_extras
 from icefloe.vision.sources import Frame, SourceError, picamera2_class
 from icefloe.worldmap import load_world
 
 from .detection import make_detector
 from .frames import Frames, camera_info
-from .sources import SimSource, open_camera
+from .sources import Retimed, SimSource, open_camera
 
 SNAPSHOT_QUALITY = 90
 """JPEG quality of ``camera/snapshot`` (calibration images: sharper than the stream's)."""
@@ -49,7 +50,8 @@ async def main(config: RobotConfig) -> None:
     detector = make_detector(config)  # ConfigError for a bad calibration file: run() says so, exits
     if cam.source == "sim":
         load_world(config.sim.world)  # a bad world or track layout: ConfigError, one line, no retrying
-    info = camera_info(cam, Intrinsics.from_config(cam))
+    latency_s = calibration_extras(cam).latency_s
+    info = camera_info(cam, Intrinsics.from_config(cam), latency_s)
     async with Node("camera", config) as node:
         small = Frames(cam)
         full = Frames(cam, full=True, quality=SNAPSHOT_QUALITY)
@@ -61,7 +63,8 @@ async def main(config: RobotConfig) -> None:
             if stream.matched:  # someone watches: ~2 ms at 320x240, no cost otherwise
                 stream.put(small.of(frame))
 
-        capture = Capture("camera", cam.source, lambda: open_camera(config), cam.width, cam.height, log=node.log,
+        capture = Capture("camera", cam.source, lambda: open_camera(config, latency_s), cam.width, cam.height,
+                          log=node.log,
                           limited=node.limited, thread_name="camera-capture", on_frame=send_while_watched)
 
         def newest() -> Frame:
@@ -84,7 +87,10 @@ async def main(config: RobotConfig) -> None:
 
         async def feed_truth() -> None:  # only for the simulated camera
             async for truth in node.subscribe(keys.TRUTH):
-                if isinstance(source := capture.source, SimSource):
+                source = capture.source
+                if isinstance(source, Retimed):
+                    source = source.source
+                if isinstance(source, SimSource):
                     source.set_truth(truth)
 
         capture.start()

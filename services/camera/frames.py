@@ -60,8 +60,9 @@ class Frames:
             return self._image
 
 
-def camera_info(camera: Camera, intrinsics: Intrinsics) -> m.CameraInfo:
-    """``camera/info``: ``intrinsics`` (at the capture size) for the ``image_width`` x ``image_height`` frames."""
+def camera_info(camera: Camera, intrinsics: Intrinsics, latency_s: float = 0.0) -> m.CameraInfo:
+    """``camera/info``: ``intrinsics`` (at the capture size) for the ``image_width`` x ``image_height`` frames,
+    and the capture latency taken off the stamps."""
     small = intrinsics.scaled(camera.image_width, camera.image_height)
     k = small.camera_matrix
     return m.CameraInfo(
@@ -69,5 +70,5 @@ def camera_info(camera: Camera, intrinsics: Intrinsics) -> m.CameraInfo:
         fx=float(k[0, 0]), fy=float(k[1, 1]), cx=float(k[0, 2]), cy=float(k[1, 2]),
         camera_matrix=[float(v) for v in k.ravel()], dist_coeffs=[float(v) for v in small.dist_coeffs.ravel()],
         capture_width=intrinsics.width, capture_height=intrinsics.height,
-        source=camera.calibration or "nominal",
+        source=camera.calibration or "nominal", capture_latency_s=latency_s,
     )

@@ -70,8 +70,8 @@ async def main(config: RobotConfig) -> None:
             # a bad world or layout file: starting again cannot help (`icefloe up` does not restart it)
             raise SystemExit(EXIT_CONFIG if isinstance(exc, ConfigError) else 1) from None
         try:
-            node.log.info("simulating a %s; world seed %d (sim.seed = %d repeats this run)",
-                          sim.kind, sim.world.seed, sim.world.seed)
+            node.log.info("simulating a %s, %s profile; world seed %d (sim.seed = %d repeats this run)",
+                          sim.kind, config.sim.profile, sim.world.seed, sim.world.seed)
             ready.set_result(sim)
             sim.start()
             async with asyncio.TaskGroup() as tasks:
@@ -105,9 +105,9 @@ async def _truth(node: Node, sim: Simulator) -> None:
         if not sim.clock.running:
             raise RuntimeError("the simulation clock stopped (see the traceback above)")
         x, y, theta = sim.world.pose
+        v, w = sim.world.velocity
         pub.put(m.Truth(stamp=time.time_ns(), x=x, y=y, theta=theta, sim_time=sim.clock.now,
-                        collided=sim.world.collided,
-                        collisions=sim.world.collisions))
+                        collided=sim.world.collided, collisions=sim.world.collisions, v=v, w=w))
         deadline = max(deadline + period, time.monotonic())
         await asyncio.sleep(deadline - time.monotonic())
 

@@ -16,6 +16,7 @@ from pathlib import Path
 from icefloe.config import RobotConfig
 from icefloe.errors import BadPayload, ConfigError
 from icefloe.schemas import messages as m
+from icefloe.sim import realism
 from icefloe.sim.clock import SimClock
 from icefloe.sim.gpio import BUTTON, GpioLines
 from icefloe.sim.icoboard import BoardModel, IcoBoardSim
@@ -80,8 +81,9 @@ class Simulator:
         check_config(config)
         self.config = config
         sim = config.sim
-        self.world = World(config.geometry, seed=sim.seed, slip=sim.slip,
-                           encoder_noise=sim.encoder_noise, obstacles=load_world(sim.world).obstacles)
+        wheels = realism.wheels(config)  # the profile's, or [sim.wheels]'s: not what [geometry] believes
+        self.world = World(config.geometry, seed=sim.seed, slip=wheels.slip, encoder_noise=wheels.encoder_noise,
+                           obstacles=load_world(sim.world).obstacles, wheels=wheels)
         self.world.set_pose(sim.start_x, sim.start_y, sim.start_theta)  # where the robot stands in the lab
         self.board: IcoBoardSim | PenguinPiSim
         if config.board.kind == "icoboard":

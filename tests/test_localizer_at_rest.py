@@ -1,0 +1,82 @@
+"""The localizer at rest on rendered frames, with the marker detector's corner inset undone (the calibration
+`icefloe calibrate` measures with a ChArUco board of the robot's dictionary, docs/camera.md) and without:
+sim + hwbridge + odometry + camera + localizer as real processes, the ideal profile, against `sim/truth`;
+one sim, hwbridge and odometry for both runs, the camera and the localizer started anew for each.
+
+    .venv/bin/pytest -s tests/test_localizer_at_rest.py     # prints the figures
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+import numpy as np
+import pytest
+from conftest import wait_for
+from test_localizer_sim import check_exits, collect
+
+from icefloe import config as config_mod
+from icefloe.schemas import keys
+from icefloe.sim.camera_calibration import calibrate_camera
+
+pytestmark = pytest.mark.slow
+
+POSE = (1.0, 0.75, -0.785)
+"""Where the robot stands: markers 1 and 0 in view, 1.25 and 2.19 m away, seen at 37 and 63 degrees from
+square on (the lab has no place that shows three markers between 0.6 and 2.2 m)."""
+HOLD_S = 2.0
+"""How long the pose is watched once both markers have been seen, s (4 s gave the same medians to 0.01 cm)."""
+
+
+async def watch(robot) -> tuple[float, float]:
+    """(position error m, heading error rad) of loc/pose against the truth, the median over `HOLD_S`: the
+    camera and the localizer started on the running sim, hwbridge and odometry, and stopped after."""
+    procs = [robot.start(s) for s in ("camera", "localizer")]
+    truth, loc, frames = [], [], []
+    async with robot.node("tester") as node:
+        tasks = [asyncio.create_task(collect(node.subscribe(topic, latest=False, maxsize=1024), into))
+                 for topic, into in ((keys.TRUTH, truth), (keys.LOC_POSE, loc), (keys.LANDMARKS, frames))]
+        await wait_for(lambda: truth and len({lm.id for f in frames for lm in f.landmarks}) >= 2, timeout=60)
+        start = len(loc)
+        await asyncio.sleep(HOLD_S)
+        for task in tasks:
+            task.cancel()
+    for proc in procs:
+        assert proc.alive(), proc.output
+        assert proc.stop() == 0, proc.output
+    t = truth[-1]
+    held = loc[start:]
+    assert len(held) > 10, "the localizer published too little"
+    position = float(np.median([math.hypot(p.x - t.x, p.y - t.y) for p in held]))
+    heading = float(np.median([abs(math.remainder(p.theta - t.theta, math.tau)) for p in held]))
+    return position, heading
+
+
+@pytest.mark.timeout(300)
+async def test_the_localizer_at_rest_with_the_inset_undone(make_robot, tmp_path) -> None:
+    """Measured (2026-12-07, load 10-13, about 90 s for both runs, 4 s held): as detected 1.86 cm 0.47 deg,
+    inset undone 1.68 cm 0.59 deg; held 2 s (load 1-3: 6.4 s for both runs on one sim, hwbridge and
+    odometry; 6.8-7.9 s with a robot each, 11.4 s when held 4 s): 1.87 cm 0.48 deg and 1.66-1.67 cm
+    0.59 deg, so the bounds (3.5 cm, 1.5 deg) are 2.1 and 2.5 times it.
+    The issue's goal, within 1 cm, is not reached here: at this pose the detector's range errors are per
+    marker, not the inset alone (rendered frames at this pose, 30 frames: marker 1 +1.78 cm as detected,
+    +1.11 cm undone; marker 0, 63 degrees from square on, +0.23 cm as detected, -2.44 cm undone: the inset
+    of a marker seen this obliquely is not the mean one). At (1.0, 0.0, 0.393), markers 2 and 1 at 1.0 and
+    1.56 m nearer square on: 0.46 cm as detected, 0.45 cm undone."""
+    x, y, theta = POSE
+    where = (f"[sim]\nstart_x = {x}\nstart_y = {y}\nstart_theta = {theta}\nseed = 3\n"
+             f"[localizer]\ninitial_x = {x}\ninitial_y = {y}\ninitial_theta = {theta}\n")
+    robot = make_robot(where)
+    stack = [robot.start(s) for s in ("sim", "hwbridge", "odometry")]  # one robot for both runs
+    plain = await watch(robot)
+    # the nominal lens (what the ideal profile's camera has) and the inset measured from the calibration
+    # world's DICT_4X4_50 ChArUco board, as `icefloe calibrate --keep-intrinsics` would write them
+    calibrate_camera(config_mod.parse({}), tmp_path / "camera.yaml", seed=7)
+    with robot.config_path.open("a") as config:  # the camera started next reads it
+        config.write(f'\n[camera]\ncalibration = "{tmp_path / "camera.yaml"}"\n')
+    undone = await watch(robot)
+    check_exits(stack)
+    print(f"\nlocalizer at rest, median over {HOLD_S:.0f} s: as detected {plain[0] * 100:.2f} cm "
+          f"{math.degrees(plain[1]):.2f} deg; inset undone {undone[0] * 100:.2f} cm {math.degrees(undone[1]):.2f} deg")
+    assert undone[0] < 0.035 and math.degrees(undone[1]) < 1.5
