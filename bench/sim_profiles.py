@@ -40,6 +40,7 @@ from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
 from icefloe.sim.camera_calibration import calibrate_camera
+from icefloe.testing import steer_round
 from icefloe.vision.geometry import CameraCalibration, load_calibration, load_extras, save_calibration
 from icefloe.worldmap import load_world
 
@@ -76,15 +77,10 @@ async def tour(config_path: Path, seconds: float) -> dict:
             driven += math.hypot(t.x - last.x, t.y - last.y)
             last = t
             samples.append((t, latest["odom/pose"], latest["loc/pose"], latest.get("slam/pose")))
-            gx, gy = SQUARE[corner % len(SQUARE)]
-            if math.hypot(gx - t.x, gy - t.y) < 0.05:
-                corner += 1
+            corner, step = steer_round(SQUARE, corner, t)
+            if step is None:
                 continue
-            err = wrap_angle(math.atan2(gy - t.y, gx - t.x) - t.theta)
-            if abs(err) > 0.15:
-                twist.put(m.Twist(v=0.0, w=max(-1.0, min(1.0, 3.0 * err))))
-            else:
-                twist.put(m.Twist(v=0.2, w=2.0 * err))
+            twist.put(step)
             await asyncio.sleep(0.05)
         node.publisher(keys.STOP).put(m.Stop())
         await asyncio.sleep(2.0)  # the wheels at rest, the last estimates out

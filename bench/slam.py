@@ -38,7 +38,7 @@ from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
-from icefloe.testing import TruthCamera, play_camera
+from icefloe.testing import TruthCamera, play_camera, steer_round
 from icefloe.worldmap import load_world
 
 SERVICES = ("sim", "hwbridge", "odometry", "localizer", "slam", "mapper")
@@ -72,15 +72,10 @@ async def tour(config_path: Path, seconds: float, seed: int, procs: dict[str, su
             t = latest["truth"]
             driven += math.hypot(t.x - last.x, t.y - last.y)
             last = t
-            gx, gy = SQUARE[corner % len(SQUARE)]
-            if math.hypot(gx - t.x, gy - t.y) < 0.05:
-                corner += 1
+            corner, step = steer_round(SQUARE, corner, t)
+            if step is None:
                 continue
-            err = wrap_angle(math.atan2(gy - t.y, gx - t.x) - t.theta)
-            if abs(err) > 0.15:
-                twist.put(m.Twist(v=0.0, w=max(-1.0, min(1.0, 3.0 * err))))
-            else:
-                twist.put(m.Twist(v=0.2, w=2.0 * err))
+            twist.put(step)
             await asyncio.sleep(0.05)
         latest["driven"] = driven
         node.publisher(keys.STOP).put(m.Stop())

@@ -81,6 +81,23 @@ UNKNOWN_ID = 49
 """The marker id `TruthCamera` reports when asked for sightings of markers not in the map."""
 
 
+def steer_round(corners: list[tuple[float, float]], corner: int, pose: m.Truth, speed: float = 0.2,
+                turn: float = 1.0, reached: float = 0.05) -> tuple[int, m.Twist | None]:
+    """One step of driving round ``corners`` (world m) on the true pose: the corner to make for next
+    (``corner`` counts the sides driven; one more once within ``reached`` m of it), and the twist
+    (m/s, rad/s): turn on the spot (at most ``turn``) while the heading is off by more than 0.15 rad,
+    else drive at ``speed`` steering onto it; None on the step a corner is reached. Steering on the
+    truth makes every run drive the same path, whatever the wheels and however busy the machine
+    (bench/slam.py, bench/sim_profiles.py, tests/test_slam_rendered.py)."""
+    gx, gy = corners[corner % len(corners)]
+    if math.hypot(gx - pose.x, gy - pose.y) < reached:
+        return corner + 1, None
+    err = wrap_angle(math.atan2(gy - pose.y, gx - pose.x) - pose.theta)
+    if abs(err) > 0.15:
+        return corner, m.Twist(v=0.0, w=max(-turn, min(turn, 3.0 * err)))
+    return corner, m.Twist(v=speed, w=2.0 * err)
+
+
 class TruthCamera:
     """A fake of the camera service: what it would report from a true pose (``sim/truth``).
 

@@ -18,11 +18,11 @@ from conftest import wait_for
 from test_localizer_sim import check_exits, collect
 
 from icefloe import config as config_mod
-from icefloe.angles import wrap_angle
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
 from icefloe.sim.camera_calibration import calibrate_camera
+from icefloe.testing import steer_round
 from icefloe.worldmap import load_world
 
 pytestmark = pytest.mark.slow
@@ -48,13 +48,10 @@ async def drive(node, truth: list[m.Truth], timeout: float = 90.0) -> float:
         t = truth[-1]
         driven += math.hypot(t.x - last.x, t.y - last.y)
         last = t
-        gx, gy = SQUARE[corner % len(SQUARE)]
-        if math.hypot(gx - t.x, gy - t.y) < 0.05:
-            corner += 1
+        corner, step = steer_round(SQUARE, corner, t, speed=SPEED, turn=TURN)
+        if step is None:
             continue
-        err = wrap_angle(math.atan2(gy - t.y, gx - t.x) - t.theta)
-        twist.put(m.Twist(v=0.0, w=max(-TURN, min(TURN, 3.0 * err))) if abs(err) > 0.15
-                  else m.Twist(v=SPEED, w=2 * err))
+        twist.put(step)
         await asyncio.sleep(0.05)
     node.publisher(keys.STOP).put(m.Stop())
     return driven
