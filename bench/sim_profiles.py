@@ -1,5 +1,6 @@
 """The reference services live on rendered frames, in both profiles of the simulator, side by side: the
-map's RMSE and markers found, and each pose's error against the truth (p50, p95, final).
+map's RMSE and markers found, each pose's error against the truth (p50, p95, final), and the follower's
+cross-track error driving a planned path on the localizer's pose.
 
     .venv/bin/python bench/sim_profiles.py [--seconds 120] [--seed 4] [--profiles ideal,realistic]
 
@@ -15,13 +16,21 @@ marker detector's corner inset. The capture latency is not measured (it needs th
 `calibrate --drive`): in the realistic profile the frames' stamps stay late by it, as on a robot
 calibrated without ``--drive``.
 
-The reference line is the ideal profile. Not in it yet: the planner and the follower (cross-track error).
+After the tour, the planning services start as processes too (grid, planner, follower; docs/planning.md):
+the bench asks ``nav/plan`` for a path from the localizer's pose, where the tour left the robot, to a
+fixed goal across the lab (the far corner, round the crate: tests/test_planning_sim.py's), publishes it
+on ``nav/path``, and the follower drives it steering on ``loc/pose`` (its default, as on a robot).
+Measured on ``sim/truth``: the cross-track error to the planned path (p50, p95, max) while following,
+whether it arrived and how far from the goal, and the time.
+
+The reference line is the ideal profile.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 import math
 import subprocess
 import sys
@@ -39,14 +48,25 @@ from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.score.maths import score_map
+from icefloe.services.follower.pursuit import project
 from icefloe.sim.camera_calibration import calibrate_camera
 from icefloe.testing import steer_round
 from icefloe.vision.geometry import CameraCalibration, load_calibration, load_extras, save_calibration
 from icefloe.worldmap import load_world
 
 SERVICES = ("sim", "hwbridge", "odometry", "camera", "localizer", "slam", "mapper")
+PLANNING = ("grid", "planner", "follower")
+"""Started after the tour, so that the tour's figures are those of the stack without them."""
 SQUARE = [(1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (0.0, 0.0)]
 """Corners driven to in turn, counter-clockwise, m (bench/slam.py's)."""
+GOAL = (-1.5, -1.5)
+"""Where the followed path goes from where the tour left the robot (the same place in both profiles, the tour
+being steered on the truth): the lab's far corner, round the crate (tests/test_planning_sim.py's goal)."""
+ARRIVED = 0.05
+"""The follower reached the goal if it says ``arrived`` with the truth within this of the goal, m (its
+own tolerance is 3 cm on the localizer's pose, which is itself a few cm off)."""
+
+
 def pose_error(pose, truth: m.Truth) -> tuple[float, float]:
     return math.hypot(pose.x - truth.x, pose.y - truth.y), abs(wrap_angle(pose.theta - truth.theta))
 
@@ -89,6 +109,66 @@ async def tour(config_path: Path, seconds: float) -> dict:
     latest["driven"] = driven
     latest["samples"] = samples
     return latest
+
+
+def distance_to_path(path: list[m.Waypoint], x: float, y: float) -> float:
+    return min(project((a.x, a.y), (b.x, b.y), (x, y))[1] for a, b in itertools.pairwise(path))
+
+
+async def follow(config_path: Path, limit: float = 180.0) -> dict:
+    """A plan from the localizer's pose to `GOAL`, driven by the follower; the truth meanwhile."""
+    config = load(config_path)
+    truth: list[m.Truth] = []
+    statuses: list[m.FollowStatus] = []
+    async with Node("bench", config) as node:
+        async def watch(topic: keys.Topic, into: list) -> None:
+            async for msg in node.subscribe(topic, latest=False):
+                into.append(msg)
+
+        tasks = [asyncio.create_task(watch(keys.TRUTH, truth)), asyncio.create_task(watch(keys.NAV_STATUS, statuses))]
+        loc = node.latest(keys.LOC_POSE)
+        deadline = time.monotonic() + 120
+        while True:  # the planner and the follower start slowly on a loaded machine
+            pose = loc.get()
+            try:
+                if pose is None or not statuses:
+                    raise TimeoutError("not up yet")
+                plan = await node.query(keys.PLAN, m.PlanRequest(start_x=pose.x, start_y=pose.y, goal_x=GOAL[0],
+                                                                  goal_y=GOAL[1]), timeout=10)
+                break
+            except Exception:
+                if time.monotonic() > deadline:
+                    raise SystemExit(f"no plan within 120 s (pose {pose}, follower status {statuses[-1:]})") from None
+                await asyncio.sleep(0.5)
+        if not plan.ok:
+            raise SystemExit(f"no plan from {pose} to {GOAL}: {plan.reason}")
+        start, t0 = len(truth), time.monotonic()
+        path = node.command(m.NavPath, points=plan.path)
+        node.publisher(keys.NAV_PATH).put(path)
+        while time.monotonic() - t0 < limit:  # until the follower says it is done with this path
+            if statuses[-1].seq == path.seq and statuses[-1].state in ("arrived", "stopped"):
+                break
+            await asyncio.sleep(0.05)
+        seconds = time.monotonic() - t0
+        await asyncio.sleep(1.0)  # the wheels at rest
+        for task in tasks:
+            task.cancel()
+    return {"plan": plan, "truth": truth[start:], "status": statuses[-1], "seconds": seconds}
+
+
+def follow_figures(got: dict) -> dict[str, str]:
+    plan, truth, status = got["plan"], got["truth"], got["status"]
+    errs = np.array([distance_to_path(plan.path, t.x, t.y) for t in truth]) if truth else np.array([np.nan])
+    end = truth[-1] if truth else None
+    off = math.dist((end.x, end.y), GOAL) if end else math.nan
+    reached = status.state == "arrived" and off < ARRIVED
+    return {
+        "plan to (-1.5, -1.5): points, length": f"{len(plan.path)}, {plan.length:.2f} m",
+        "follower cross-track p50/p95/max cm": f"{np.percentile(errs, 50) * 100:.1f} / "
+                                               f"{np.percentile(errs, 95) * 100:.1f} / {errs.max() * 100:.1f}",
+        "follower: goal reached, off (truth)": f"{'yes' if reached else 'no'} ({status.state}), {off * 100:.1f} cm",
+        "follower: time, collisions": f"{got['seconds']:.1f} s, {end.collisions if end else '-'}",
+    }
 
 
 def figures(got: dict) -> dict[str, str]:
@@ -145,7 +225,12 @@ def run(profile: str, seconds: float, seed: int, folder: Path, latency_s: float)
         for s in SERVICES:
             procs.append(subprocess.Popen([*base, f"icefloe.services.{s}", *cfg], cwd=ROOT, stdin=subprocess.DEVNULL,
                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-        return found, figures(asyncio.run(tour(path, seconds)))
+        rows = figures(asyncio.run(tour(path, seconds)))
+        for s in PLANNING:
+            procs.append(subprocess.Popen([*base, f"icefloe.services.{s}", *cfg], cwd=ROOT, stdin=subprocess.DEVNULL,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        rows.update(follow_figures(asyncio.run(follow(path))))
+        return found, rows
     finally:
         for p in [*reversed(procs), router]:
             p.terminate()
