@@ -35,6 +35,7 @@ OWN: dict[str, tuple[set[str], str]] = {
     "tests/test_planning.py": ({"planner", "follower"}, "the planner's and the follower's maths"),
     "tests/test_planning_sim.py": ({"follower"}, "the follower's maths on the simulated robot"),
     "bench/record_replay.py": ({"hwbridge"}, "reads hwbridge's cycle state while recording"),
+    "bench/sim_profiles.py": ({"follower"}, "the follower's cross-track error, by the follower's own projection"),
     "bench/stops.py": ({"hwbridge"}, "hwbridge's stops"),
     "bench/timed_motion_model.py": ({"hwbridge", "webapi"}, "a timed motion: the web API's timing, hwbridge's "
                                     "profile, slew and dither, on the firmware model"),
