@@ -124,12 +124,8 @@ class Bridge:
             self.limited.warning(f"clamp:{source}", f"{source}: clamped to {self.max_speed} m/s "
                                  f"per wheel (left {left:.3f}, right {right:.3f})")
         with self._lock:
-            issued, why = self.order.motion(origin)
-            if not why and self.hold.held:
-                why = self.hold.refusal()
-            if why:
-                self.dropped += 1
-            else:
+            issued, why = self._admit(origin)
+            if not why:
                 self._park_car(origin.arrival_ns)
                 self._drive(left, right, issued)
                 self.changes += 1
@@ -140,18 +136,24 @@ class Bridge:
         self._cut(f"another command on {source}")
         return True
 
+    def _admit(self, origin: Origin) -> tuple[int, str]:
+        """Whether a motion command may drive (call with the lock held): `CommandOrder`'s rules, then
+        the lab's hold. Returns when it was issued (ns) and why not ('' if it may); a refusal is counted."""
+        issued, why = self.order.motion(origin)
+        if not why and self.hold.held:
+            why = self.hold.refusal()
+        if why:
+            self.dropped += 1
+        return issued, why
+
     def car(self, msg: m.CarDrive, origin: Origin) -> bool:
         """A ``cmd/car``: drive as the virtual car, if `CommandOrder` allows (the same rules as
         every motion command). Clips the steering to ``car.max_steer`` and slows the car for the
         wheels' limit, each with a line. Safe to call from any thread. Returns whether it drives."""
         source = keys.CAR.name
         with self._lock:
-            issued, why = self.order.motion(origin)
-            if not why and self.hold.held:
-                why = self.hold.refusal()
-            if why:
-                self.dropped += 1
-            else:
+            issued, why = self._admit(origin)
+            if not why:
                 made = self.car_model.command(msg.v, msg.steer, origin.arrival_ns * 1e-9)
                 wheels = self.car_model.wheels
                 self._drive(wheels.left, wheels.right, issued)
@@ -313,12 +315,8 @@ class Bridge:
         except ValueError as exc:
             raise BadPayload(f"{keys.MOTION.name}: {exc}") from None
         with self._lock:
-            _issued, why = self.order.motion(origin)
-            if not why and self.hold.held:
-                why = self.hold.refusal()
-            if why:
-                self.dropped += 1
-            else:
+            _issued, why = self._admit(origin)
+            if not why:
                 self._park_car(origin.arrival_ns)
                 self.changes += 1
                 since = self.changes
