@@ -6,7 +6,8 @@ SHA-256, and `load` finds that exact file, in this order:
 
 1. ``$ICEFLOE_COURSE_CLIENTS/<owner>+<name>/<path>``: a folder of files fetched beforehand;
 2. a git mirror of the repository, ``$ICEFLOE_COURSE_MIRRORS/<owner>+<name>/repo`` (default
-   ``/work/.mirror``, where this project's build machine keeps them): ``git show <commit>:<path>``;
+   ``.mirror`` in the folder that holds this checkout, where the project's build machine keeps
+   them): ``git show <commit>:<path>``;
 3. ``https://raw.githubusercontent.com/<owner>/<name>/<commit>/<path>``, kept in
    ``~/.cache/icefloe/course-clients/``.
 
@@ -30,6 +31,9 @@ import cv2
 import numpy as np
 import pytest
 import requests
+
+MIRRORS = Path(__file__).resolve().parent.parent.parent / ".mirror"
+"""Where course repositories' git mirrors are looked for by default: ``.mirror`` beside this checkout."""
 
 
 @dataclass(frozen=True)
@@ -93,7 +97,7 @@ def _from_folder(course: CourseFile) -> bytes | None:
 
 
 def _from_mirror(course: CourseFile) -> bytes | None:
-    repo = Path(os.environ.get("ICEFLOE_COURSE_MIRRORS", "/work/.mirror")) / course.folder / "repo"
+    repo = Path(os.environ.get("ICEFLOE_COURSE_MIRRORS", MIRRORS)) / course.folder / "repo"
     if not repo.is_dir():
         return None
     shown = subprocess.run(["git", "--git-dir", str(repo), "show", f"{course.commit}:{course.path}"],
