@@ -1,0 +1,130 @@
+"""The camera's range errors at rest on rendered frames, and the localizer's error they make: per marker, and fused.
+
+    .venv/bin/python bench/camera_at_rest.py [--pose X Y THETA] [--frames 30] [--poses 80]
+
+Renders ``--frames`` frames (the ideal profile, `sim/camera.py`) of the lab from ``--pose`` (default:
+tests/test_localizer_at_rest.py's), finds the markers with the camera service's detector (`make_detector`)
+as detected and with the marker inset undone (the calibration `sim/camera_calibration.py` makes, as
+`icefloe calibrate` would), and prints each marker's mean range and bearing error against the truth, and
+the pose the localizer's filter (`make_ekf`, started at the truth) settles at from them. The reference,
+in the same run: the same solve from the markers' true corners, which must come out exact (the
+detector's geometry, the camera's mount and the filter add nothing of their own). Then ``--poses``
+random places in the lab with two or more markers within 2.5 m: the fused position error's p50, p90
+and max over them (10 frames each), and every sighting's range error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+from pathlib import Path
+
+import cv2
+import msgspec
+import numpy as np
+
+from icefloe import config as config_mod
+from icefloe.config import RobotConfig
+from icefloe.estimation.ekf import Ekf
+from icefloe.estimation.localizer import make_ekf
+from icefloe.services.camera.detection import Detector, make_detector
+from icefloe.sim.camera import CameraRenderer, Visible
+from icefloe.sim.camera_calibration import calibrate_camera
+from icefloe.vision.geometry import range_bearing
+
+TEST_POSE = (1.0, 0.75, -0.785)
+"""tests/test_localizer_at_rest.py's POSE: markers 1 and 0 at 1.25 and 2.19 m, 37 and 63 degrees from square on."""
+
+
+def from_true_corners(detector: Detector, seen: Visible) -> tuple[float, float]:
+    """Range and bearing the detector's geometry gives from a marker's true corners."""
+    size = detector.sizes.get(seen.id, detector.default_size)
+    corners = np.array([[-1, 1, 0], [1, 1, 0], [1, -1, 0], [-1, -1, 0]], float) * size / 2
+    _, _, tvec = cv2.solvePnP(corners, seen.corners.astype(float), detector.k, detector.dist,
+                              flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    return range_bearing(detector.mount.to_robot(tvec.ravel()))
+
+
+def started_at(config: RobotConfig, pose: tuple[float, float, float]) -> Ekf:
+    """The localizer's filter, started at ``pose`` with the config's sigmas."""
+    x, y, theta = pose
+    return make_ekf(msgspec.structs.replace(config, localizer=msgspec.structs.replace(
+        config.localizer, initial_x=x, initial_y=y, initial_theta=theta)))
+
+
+def at_pose(renderer: CameraRenderer, detectors: dict[str, Detector], config: RobotConfig,
+            pose: tuple[float, float, float], frames: int) -> tuple[dict, dict[str, Ekf]]:
+    """Per (way, marker id) the (range, bearing) errors of each frame, and each way's filter after them."""
+    errors: dict[tuple[str, int], list[tuple[float, float]]] = {}
+    filters = {way: started_at(config, pose) for way in ("true corners", *detectors)}
+    for _ in range(frames):
+        image, visible = renderer.render(*pose)
+        truth = {v.id: v for v in visible}
+        found = {way: [(lm.id, lm.range, lm.bearing) for lm in det.detect(image) if lm.id in truth]
+                 for way, det in detectors.items()}
+        found["true corners"] = [(v.id, *from_true_corners(detectors["as detected"], v)) for v in visible]
+        for way, sightings in found.items():
+            for marker, rng, bearing in sightings:
+                filters[way].observe(marker, rng, bearing)
+                errors.setdefault((way, marker), []).append((rng - truth[marker].range,
+                                                             math.remainder(bearing - truth[marker].bearing, math.tau)))
+    return errors, filters
+
+
+def pose_error(ekf: Ekf, pose: tuple[float, float, float]) -> tuple[float, float]:
+    """(position error m, heading error rad) of the filter's pose."""
+    x, y, theta = ekf.pose
+    return math.hypot(x - pose[0], y - pose[1]), abs(math.remainder(theta - pose[2], math.tau))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--pose", type=float, nargs=3, default=TEST_POSE, metavar=("X", "Y", "THETA"),
+                        help="where the robot stands: m, m, rad")
+    parser.add_argument("--frames", type=int, default=30, help="frames rendered at the pose")
+    parser.add_argument("--poses", type=int, default=80, help="random poses for the summary (0: none)")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    config = config_mod.parse({"sim": {"seed": 3}})
+    renderer = CameraRenderer.of_robot(config, seed=3)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "camera.yaml"
+        print("calibrated:", calibrate_camera(config_mod.parse({}), path, seed=7))
+        undone = config_mod.parse({"sim": {"seed": 3}, "camera": {"calibration": str(path)}})
+        detectors = {"as detected": make_detector(config), "inset undone": make_detector(undone)}
+    pose = tuple(args.pose)
+    errors, filters = at_pose(renderer, detectors, config, pose, args.frames)
+    print(f"at ({pose[0]}, {pose[1]}, {pose[2]}), {args.frames} frames, per marker: mean range and bearing error")
+    for (way, marker), rows in sorted(errors.items()):
+        e = np.array(rows)
+        print(f"  {way:13s} marker {marker:2d}: range {e[:, 0].mean() * 100:+.2f} cm (sd {e[:, 0].std() * 100:.2f}), "
+              f"bearing {math.degrees(e[:, 1].mean()):+.3f} deg")
+    for way, ekf in filters.items():
+        position, heading = pose_error(ekf, pose)
+        reference = "   (reference: must be 0)" if way == "true corners" else ""
+        print(f"  {way:13s} fused: {position * 100:.2f} cm {math.degrees(heading):.2f} deg{reference}")
+    if args.poses <= 0:
+        return
+    rng = np.random.default_rng(11)
+    fused: dict[str, list[float]] = {way: [] for way in detectors}
+    ranges: dict[str, list[float]] = {way: [] for way in detectors}
+    done = 0
+    while done < args.poses:
+        place = (rng.uniform(-1.4, 1.4), rng.uniform(-1.4, 1.4), rng.uniform(-math.pi, math.pi))
+        if len([v for v in renderer.render(*place)[1] if v.range < 2.5]) < 2:
+            continue
+        done += 1
+        errors, filters = at_pose(renderer, detectors, config, place, 10)
+        for way in detectors:
+            fused[way].append(pose_error(filters[way], place)[0] * 100)
+            ranges[way] += [e for (w, _), rows in errors.items() if w == way for e, _ in rows]
+    print(f"{args.poses} random poses with two or more markers within 2.5 m, 10 frames each:")
+    for way in detectors:
+        p, r = np.array(fused[way]), np.array(ranges[way]) * 100
+        print(f"  {way:13s} fused position p50 {np.median(p):.2f} cm  p90 {np.percentile(p, 90):.2f} cm  "
+              f"max {p.max():.2f} cm; range error of {len(r)} sightings mean {r.mean():+.2f} cm sd {r.std():.2f} cm")
+
+
+if __name__ == "__main__":
+    main()
