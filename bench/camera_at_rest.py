@@ -10,7 +10,10 @@ the pose the localizer's filter (`make_ekf`, started at the truth) settles at fr
 in the same run: the same solve from the markers' true corners, which must come out exact (the
 detector's geometry, the camera's mount and the filter add nothing of their own). Then ``--poses``
 random places in the lab with two or more markers within 2.5 m: the fused position error's p50, p90
-and max over them (10 frames each), and every sighting's range error.
+and max over them (10 frames each), every sighting's range error, and how far inside the black square
+the detector put each edge (the mean of its two corners along its normal), by the refinement window
+OpenCV takes from the marker's mean side and by how obliquely the marker is seen: what the
+calibration's one inset per side (`MarkerInset`) stands for.
 """
 
 from __future__ import annotations
@@ -72,6 +75,26 @@ def at_pose(renderer: CameraRenderer, detectors: dict[str, Detector], config: Ro
     return errors, filters
 
 
+def refinement_window(corners: np.ndarray) -> int:
+    """The half-size of the window OpenCV's ArUco detector gives `cv2.cornerSubPix` for a marker, px:
+    ``relativeCornerRefinmentWinSize`` (0.3) x its mean cell (mean side / 6 for 4x4 bits and the
+    border), rounded, at least 1 and at most ``cornerRefinementWinSize`` (3, `robot_detector`)."""
+    side = float(np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1).mean())
+    return min(3, max(1, round(0.3 * side / 6)))
+
+
+def edge_insets(detected: np.ndarray, true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per edge i (corner i to i + 1) of a marker: how far inside the true square the detected corners
+    are along its inward normal (px, their mean), and its true length (px)."""
+    edges = np.roll(true, -1, axis=0) - true
+    lengths = np.linalg.norm(edges, axis=1)
+    normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1) / lengths[:, None]
+    inward = ((true.mean(axis=0) - (true + edges / 2)) * normals).sum(axis=1) > 0
+    normals[~inward] *= -1
+    miss = detected - true
+    return np.array([(miss[i] + miss[(i + 1) % 4]) @ normals[i] / 2 for i in range(4)]), lengths
+
+
 def pose_error(ekf: Ekf, pose: tuple[float, float, float]) -> tuple[float, float]:
     """(position error m, heading error rad) of the filter's pose."""
     x, y, theta = ekf.pose
@@ -109,6 +132,7 @@ def main() -> None:
     rng = np.random.default_rng(11)
     fused: dict[str, list[float]] = {way: [] for way in detectors}
     ranges: dict[str, list[float]] = {way: [] for way in detectors}
+    insets: list[tuple[int, float, bool, float]] = []  # (window, incidence deg, edge longer than the mean, inset)
     done = 0
     while done < args.poses:
         place = (rng.uniform(-1.4, 1.4), rng.uniform(-1.4, 1.4), rng.uniform(-math.pi, math.pi))
@@ -116,6 +140,14 @@ def main() -> None:
             continue
         done += 1
         errors, filters = at_pose(renderer, detectors, config, place, 10)
+        image, visible = renderer.render(*place)
+        truth = {v.id: v for v in visible}
+        for lm in detectors["as detected"].detect(image):
+            if lm.id in truth:
+                corners = np.array(lm.corners).reshape(4, 2)
+                inset, lengths = edge_insets(corners, truth[lm.id].corners)
+                insets += [(refinement_window(corners), math.degrees(truth[lm.id].incidence), bool(n > lengths.mean()),
+                            float(d)) for d, n in zip(inset, lengths, strict=True)]
         for way in detectors:
             fused[way].append(pose_error(filters[way], place)[0] * 100)
             ranges[way] += [e for (w, _), rows in errors.items() if w == way for e, _ in rows]
@@ -124,6 +156,16 @@ def main() -> None:
         p, r = np.array(fused[way]), np.array(ranges[way]) * 100
         print(f"  {way:13s} fused position p50 {np.median(p):.2f} cm  p90 {np.percentile(p, 90):.2f} cm  "
               f"max {p.max():.2f} cm; range error of {len(r)} sightings mean {r.mean():+.2f} cm sd {r.std():.2f} cm")
+    table = np.array(insets)
+    print("  edges as detected, px inside the square (mean): window, seen from square on, short/long edges")
+    for window in (1, 2, 3):
+        for low, high in ((0, 50), (50, 90)):
+            rows = table[(table[:, 0] == window) & (table[:, 1] >= low) & (table[:, 1] < high)]
+            if len(rows):
+                short, long = rows[rows[:, 2] == 0, 3], rows[rows[:, 2] == 1, 3]
+                print(f"    window {window} px, {low:2d}-{high} deg: {len(rows):4d} edges, {rows[:, 3].mean():.3f} px; "
+                      f"short edges {short.mean() if len(short) else math.nan:.3f}, "
+                      f"long {long.mean() if len(long) else math.nan:.3f}")
 
 
 if __name__ == "__main__":
