@@ -11,7 +11,9 @@ Markers are real ArUco bit patterns from ``cv2.aruco`` with a white quiet border
 of one cell around the black square, as you would print them. Calibration boards
 (a world's ``[[board]]``: chessboards, or ChArUco boards from ``cv2.aruco``) are
 drawn the same way, with a white margin of one square; `CameraRenderer.board_corners`
-gives their inner corners' true pixels. Nearer markers are drawn over farther ones.
+gives their inner corners' true pixels. Both are drawn anti-aliased (`SUPERSAMPLE`: each
+pixel the mean of the light on it, as on a camera's sensor), so their edges are where the lens
+puts them whichever way they fall between pixels. Nearer markers are drawn over farther ones.
 A marker block's faces (`WorldMap.faces`) are drawn as markers; the cube's body is not drawn.
 
 The world's obstacles (``[[obstacle]]``: walls, boxes) are drawn as solid grey prisms standing
