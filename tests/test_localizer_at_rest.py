@@ -68,7 +68,7 @@ async def test_the_localizer_at_rest_with_the_inset_undone(make_robot, tmp_path)
     its top and bottom edges about 0.1 px inside the square, not the 0.23 px the calibration's inset
     says for a marker of its mean side (docs/camera.md)."""
     x, y, theta = POSE
-    where = (f"[sim]\nstart_x = {x}\nstart_y = {y}\nstart_theta = {theta}\nseed = 3\n"
+    where = (f"[sim]\nprofile = \"ideal\"\nstart_x = {x}\nstart_y = {y}\nstart_theta = {theta}\nseed = 3\n"
              f"[localizer]\ninitial_x = {x}\ninitial_y = {y}\ninitial_theta = {theta}\n")
     robot = make_robot(where)
     stack = [robot.start(s) for s in ("sim", "hwbridge", "odometry")]  # one robot for both runs
