@@ -9,23 +9,29 @@ itself is SIGUSR1 to this process, counted by a handler.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 import signal
+import statistics
 import time
 from collections.abc import Iterator
 
 import msgspec
 import pytest
+from conftest import wait_for
+from test_hwbridge_helpers import start_stack
 from test_hwbridge_stops import MS, FakeBoard, Firmware
 from test_hwbridge_stops import firmware as firmware  # a fixture
 
 from icefloe.config import RobotConfig
 from icefloe.ordering import Origin
+from icefloe.schemas import keys
+from icefloe.schemas import messages as m
 from icefloe.services.hwbridge.bridge import Bridge
 from icefloe.services.hwbridge.control import RestGate
 from icefloe.services.hwbridge.rt import Cycle
-from icefloe.services.hwbridge.shm import Shared
+from icefloe.services.hwbridge.shm import Shared, block_name
 
 S = 1000 * MS
 
@@ -232,3 +238,60 @@ def test_penguinpi_at_rest_reads_its_encoders_and_polls_by_turns(firmware: Firmw
     assert 40 <= board.exchanges - exchanges <= 51                   # 25 a second
     assert len(samples) >= 40 and len(battery) >= 5
     assert board.button_presses == 1 and board.stop_confirmed
+
+
+@pytest.mark.slow
+async def test_from_rest_a_command_drives_at_once_and_a_stop_is_confirmed_at_zero_duty(make_robot) -> None:
+    """hwbridge and the simulated icoBoard v2 as processes, resting at 25 Hz (40 ms) after 0.2 s.
+
+    Measured with bench/rest_wake.py (load average 3.0, 5 of each): a command from rest reached
+    the board (a non-zero duty in the cycle's state) after 1.4 ms (p50; 2.6 ms max) resting and
+    not; a stop from rest was confirmed after 0.8 ms (1.4 ms not resting). A command that waited
+    for the rest's period would take 20 ms in the median here: the bound is 10 ms on the median
+    of five. Takes 8-10 s.
+    """
+    robot = make_robot('[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 2\n'
+                       "[hwbridge]\nrest_rate_hz = 25.0\nrest_after_s = 0.2\n")
+    async with robot.node() as node:
+        _sim, hw = await start_stack(robot, node)
+        wheels, stop = node.publisher(keys.WHEELS_CMD), node.publisher(keys.STOP)
+        shared = Shared.attach(block_name(robot.name))
+
+        def state() -> dict:
+            while (s := shared.read_state()) is None:
+                pass
+            return s
+
+        async def until(what, timeout: float = 10.0) -> float:  # type: ignore[no-untyped-def]
+            start = time.monotonic()
+            await wait_for(what, timeout, interval=0.0005)
+            return time.monotonic() - start
+
+        try:
+            await wait_for(shared.rest, 10.0)
+            before = state()
+            await asyncio.sleep(0.5)
+            after = state()
+            assert after["cycles"] - before["cycles"] <= 0.5 * 25 * 2, "not resting at 25 Hz"
+            assert after["overruns"] - before["overruns"] <= 1, "the rest's sleep counted as overruns"
+            commands, stops = [], []
+            for _ in range(5):
+                await wait_for(shared.rest, 10.0)
+                wheels.put(m.WheelSpeeds(left=0.2, right=0.2))
+                commands.append(await until(lambda: state()["duty_left"] != 0.0))
+                await asyncio.sleep(0.1)
+                stop.put(m.Stop())
+                number = state()["stop_confirmed"]
+                await until(lambda n=number: state()["stop_confirmed"] > n and state()["duty_left"] == 0.0)
+                await wait_for(shared.rest, 10.0)
+                number = state()["stop_confirmed"]
+                stop.put(m.Stop())                                    # a stop from rest
+                stops.append(await until(lambda n=number: state()["stop_confirmed"] > n))
+                assert state()["duty_left"] == state()["duty_right"] == 0.0
+        finally:
+            shared.close()
+        print(f"command from rest -> duty: {[round(c * 1e3, 1) for c in commands]} ms; "
+              f"stop from rest -> confirmed: {[round(s * 1e3, 1) for s in stops]} ms")
+        assert statistics.median(commands) < 0.010, commands
+        assert statistics.median(stops) < 0.010, stops
+        assert hw.alive(), hw.output
