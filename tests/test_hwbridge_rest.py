@@ -244,7 +244,7 @@ def test_penguinpi_at_rest_reads_its_encoders_and_polls_by_turns(firmware: Firmw
 async def test_from_rest_a_command_drives_at_once_and_a_stop_is_confirmed_at_zero_duty(make_robot) -> None:
     """hwbridge and the simulated icoBoard v2 as processes, resting at 25 Hz (40 ms) after 0.2 s.
 
-    Measured with bench/rest_wake.py (load average 3.0, 5 of each): a command from rest reached
+    Measured with bench/hwbridge_rest.py (load average 3.0, 5 of each): a command from rest reached
     the board (a non-zero duty in the cycle's state) after 1.4 ms (p50; 2.6 ms max) resting and
     not; a stop from rest was confirmed after 0.8 ms (1.4 ms not resting). A command that waited
     for the rest's period would take 20 ms in the median here: the bound is 10 ms on the median

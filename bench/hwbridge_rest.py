@@ -1,7 +1,7 @@
 """Benchmark: a command's and a stop's latency from rest, with the cycle resting and without.
 
-    .venv/bin/python bench/rest_wake.py              # 20 of each per board and setting
-    .venv/bin/python bench/rest_wake.py --trials 5
+    .venv/bin/python bench/hwbridge_rest.py              # 20 of each per board and setting
+    .venv/bin/python bench/hwbridge_rest.py --trials 5
 
 What runs: the robot's router, the simulator and hwbridge as processes, for the PenguinPi
 (firmware model on a pseudo-terminal) and the icoBoard v2 (model on its socket), each twice:
@@ -77,7 +77,7 @@ async def trials(config_path: Path, count: int, resting: bool) -> dict[str, list
              for module in ("icefloe.router", "icefloe.services.sim", "icefloe.services.hwbridge")]
     taken, told, stops, worst = [], [], [], 0.0
     try:
-        async with Node("rest_wake", config) as node:
+        async with Node("hwbridge_rest", config) as node:
             wheels, stop = node.publisher(keys.WHEELS_CMD), node.publisher(keys.STOP)
             await anext(node.subscribe(keys.WHEELS))  # hwbridge is up
             shared = Shared.attach(block_name(config.name))
