@@ -90,7 +90,7 @@ def main() -> None:
     folder = Path(tempfile.mkdtemp())
     board = ('[board]\nkind = "icoboard"\nprotocol = 2\n' if args.board == "icoboard" else "")
     rest = "" if args.rest_rate_hz is None else f"[hwbridge]\nrest_rate_hz = {args.rest_rate_hz}\n"
-    config = robot_config(folder, "cyclecpu", 'services = ["sim", "hwbridge"]\n' + board + rest)
+    config = robot_config(folder, f"cyclecpu{os.getpid()}", 'services = ["sim", "hwbridge"]\n' + board + rest)
     cfg = config_mod.load(str(config))
     RATE = cfg.hwbridge.rate_hz
     icefloe = [sys.executable, "-m", "icefloe.cli"]

@@ -68,14 +68,15 @@ async def stand(node: Node, shared: Shared, resting: bool) -> None:
         await asyncio.sleep(0.05)
 
 
-async def trials(config_path: Path, count: int, resting: bool) -> dict[str, list[float]]:
-    """Per kind of latency, ms; and the largest duty while a stop from rest was confirmed."""
+async def trials(config_path: Path, count: int, resting: bool) -> dict:
+    """Per kind of latency, ms; the largest duty while a stop from rest was confirmed; and the
+    cycle's link and loop counters at the end (a resting link must not time out)."""
     config = config_mod.load(config_path)
     procs = [subprocess.Popen([sys.executable, "-m", module, "--config", str(config_path)],
                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                               start_new_session=True)
              for module in ("icefloe.router", "icefloe.services.sim", "icefloe.services.hwbridge")]
-    taken, told, stops, worst = [], [], [], 0.0
+    taken, told, stops, worst, link = [], [], [], 0.0, {}
     try:
         async with Node("hwbridge_rest", config) as node:
             wheels, stop = node.publisher(keys.WHEELS_CMD), node.publisher(keys.STOP)
@@ -104,6 +105,7 @@ async def trials(config_path: Path, count: int, resting: bool) -> dict[str, list
                         return state["stop_confirmed"] > number
 
                     stops.append(until(confirmed) - sent)
+                link = {k: read_state(shared)[k] for k in ("timeouts", "late", "unmatched", "watchdog", "overruns")}
             finally:
                 shared.close()
     finally:
@@ -112,7 +114,7 @@ async def trials(config_path: Path, count: int, resting: bool) -> dict[str, list
             with contextlib.suppress(subprocess.TimeoutExpired):
                 p.wait(10)
     return {"command -> cycle": [t * 1e3 for t in taken], "command -> board told": [t * 1e3 for t in told],
-            "stop -> confirmed": [t * 1e3 for t in stops], "worst": [worst]}
+            "stop -> confirmed": [t * 1e3 for t in stops], "worst": [worst], "link": link}
 
 
 def summary(name: str, values: list[float]) -> str:
@@ -136,9 +138,10 @@ async def main() -> None:
                 got = await trials(robot_config(folder, name, extra), args.trials, rate > 0)
                 print(f"{board}, {label}: {args.trials} commands and stops from rest")
                 for kind, values in got.items():
-                    if kind != "worst":
+                    if kind not in ("worst", "link"):
                         print(summary(kind, values))
-                print(f"    largest duty while a stop from rest was confirmed: {got['worst'][0]:g}")
+                print(f"    largest duty while a stop from rest was confirmed: {got['worst'][0]:g}; since start: "
+                      + ", ".join(f"{k} {v}" for k, v in got["link"].items()))
     print(f"load average {os.getloadavg()[0]:.2f} at the end")
 
 
