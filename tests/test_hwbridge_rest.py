@@ -146,6 +146,36 @@ def test_a_motion_command_wakes_a_resting_cycle_and_drives_in_that_period(shared
     assert not cycle.rest.resting and cycle.period_ns == 1 * MS
 
 
+def test_a_stop_written_after_the_command_that_woke_the_cycle_wins(shared: Shared) -> None:
+    """The bus side wrote a command and kicked; a stop came before the cycle read them: the
+    period it runs at once reads the stop, and the wheels stay at zero duty."""
+    cfg = config()
+    board = StillBoard(cfg)
+    cycle = Cycle(cfg, shared, board)
+    cycle.link_up = True
+    shared.write_commands(0.0, 0.0, 0, True, 0, 1)
+    t = stand(cycle, S, 1.1)
+    shared.write_commands(0.3, 0.3, t, False, 0, 1)                   # the command (kick on its way)
+    shared.write_commands(0.0, 0.0, t, True, 0, 2)                    # the stop, before the cycle woke
+    assert cycle.wake(t)                                              # a new command was written: a period
+    cycle.step(t)
+    assert board.duty_left == board.duty_right == 0.0 and shared.read_state()["stop_confirmed"] == 2
+
+
+def test_a_command_older_than_the_deadman_wakes_the_cycle_but_moves_nothing(shared: Shared) -> None:
+    """Had one got past the bus side, the cycle's own deadman holds at rest as awake."""
+    cfg = config()
+    board = StillBoard(cfg)
+    cycle = Cycle(cfg, shared, board)
+    cycle.link_up = True
+    shared.write_commands(0.0, 0.0, 0, True, 0, 1)
+    t = stand(cycle, S, 1.1)
+    shared.write_commands(0.3, 0.3, t - 600 * MS, False, 0, 1)       # issued 0.6 s ago (deadman 0.5 s)
+    assert cycle.wake(t)
+    stand(cycle, t, 0.1)
+    assert board.duty_left == board.duty_right == 0.0
+
+
 def test_a_wheel_turned_by_hand_at_rest_wakes_the_cycle(shared: Shared) -> None:
     cfg = config()
     board = StillBoard(cfg)
@@ -248,7 +278,7 @@ async def test_from_rest_a_command_drives_at_once_and_a_stop_is_confirmed_at_zer
     the board (a non-zero duty in the cycle's state) after 1.4 ms (p50; 2.6 ms max) resting and
     not; a stop from rest was confirmed after 0.8 ms (1.4 ms not resting). A command that waited
     for the rest's period would take 20 ms in the median here: the bound is 10 ms on the median
-    of five. Takes 8-10 s.
+    of five. A flood of 2000 tiny commands at rest, then a stop: the stop wins. Takes 5-7 s.
     """
     robot = make_robot('[board]\nkind = "icoboard"\nbackend = "sim"\nprotocol = 2\n'
                        "[hwbridge]\nrest_rate_hz = 25.0\nrest_after_s = 0.2\n")
@@ -288,6 +318,14 @@ async def test_from_rest_a_command_drives_at_once_and_a_stop_is_confirmed_at_zer
                 stop.put(m.Stop())                                    # a stop from rest
                 stops.append(await until(lambda n=number: state()["stop_confirmed"] > n))
                 assert state()["duty_left"] == state()["duty_right"] == 0.0
+            # Hostile: a flood of tiny commands at rest, then a stop: the stop wins.
+            await wait_for(shared.rest, 10.0)
+            for _ in range(2000):
+                wheels.put(m.WheelSpeeds(left=1e-4, right=1e-4))
+            await wait_for(lambda: shared.rest() == 0, 10.0)             # awake for them
+            stop.put(m.Stop())
+            number = state()["stop_confirmed"]
+            await until(lambda n=number: state()["stop_confirmed"] > n and state()["duty_left"] == 0.0)
         finally:
             shared.close()
         print(f"command from rest -> duty: {[round(c * 1e3, 1) for c in commands]} ms; "
