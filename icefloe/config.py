@@ -144,9 +144,11 @@ class Hwbridge(Section):
     a frame every 50 ms (hence at least 25 Hz); the PenguinPi alternates its encoders and its polls
     (battery, button presses, which the board counts, DIP), each 25 times a second; a wheel pushed
     by hand wakes the cycle within 40 ms; and it is a fifth of the 1 kHz cycle's CPU."""
-    rest_after_s: Annotated[float, Meta(ge=0, le=60)] = 1.0
+    rest_after_s: Annotated[float, Meta(ge=0.1, le=60)] = 1.0
     """How long the robot must stand (the stop confirmed, the encoders unchanged) before the cycle
-    rests, s: a robot between two commands of a script does not rest and wake each time."""
+    rests, s: a robot between two commands of a script does not rest and wake each time. At least
+    0.1 s: the bus side wakes a rest once, so a flood of commands costs at most one SIGUSR1 per
+    this long."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
