@@ -320,19 +320,26 @@ CAR_IDLE_S = 1.0
 
 async def car_loop(config: RobotConfig, bridge: Bridge, node: Node) -> None:
     """The virtual car's steps at ``car.state_rate_hz`` (`Bridge.car_step`: its steering turns at its
-    rate, the wheels follow), and ``car/state``: each step while it moves or steers, else once a second."""
+    rate, the wheels follow), and ``car/state``: each step while it moves or steers, else once a second.
+    A car that neither drives nor steers has no steps to take: the loop then waits for a ``cmd/car``
+    (`Bridge.car_commanded`), or a second, instead of waking 50 times a second for nothing."""
     pub = node.publisher(keys.CAR_STATE)
     period = 1.0 / config.car.state_rate_hz
     last: tuple[float, ...] = ()
     quiet_until = 0.0
     while True:
+        bridge.car_commanded.clear()  # before the step: a cmd/car after it sets it again
         state = bridge.car_step(time.monotonic_ns())
         now = time.monotonic()
         shown = (state.v, state.steer, state.steer_target, state.x, state.y, state.theta, float(state.driving))
         if shown != last or now >= quiet_until:
             pub.put(state)
             last, quiet_until = shown, now + CAR_IDLE_S
-        await asyncio.sleep(period)
+        if state.driving or state.steer != state.steer_target:
+            await asyncio.sleep(period)
+        else:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(bridge.car_commanded.wait(), max(0.0, quiet_until - now))
 
 
 IO_PERIOD_S = 0.02

@@ -92,6 +92,8 @@ class Bridge:
         self._lock = threading.Lock()
         """Commands and stops arrive on Zenoh threads and the event loop: one writer at a time."""
         self._loop = asyncio.get_running_loop()
+        self.car_commanded = asyncio.Event()
+        """Set when a ``cmd/car`` drives: the car's loop, idle, waits for it (``__main__.car_loop``)."""
         self._motion: asyncio.Future[str] | None = None
         """Set while a timed motion runs; resolved with the reason it was cut short."""
         self._waiting: list[tuple[int, asyncio.Future[dict]]] = []
@@ -165,6 +167,8 @@ class Bridge:
         if why:
             self.limited.warning(f"order:{source}", f"{source}: not applied: {why}")
             return False
+        with contextlib.suppress(RuntimeError):  # the loop is closing
+            self._loop.call_soon_threadsafe(self.car_commanded.set)
         if made.clipped:
             self.limited.warning(f"clip:{source}", f"{source}: steer {msg.steer:.4g} rad is beyond car.max_steer "
                                  f"({self.config.car.max_steer:g} rad): clipped to {made.steer_target:.3f} rad")
