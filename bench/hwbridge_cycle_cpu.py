@@ -1,13 +1,15 @@
 """CPU of hwbridge's real-time cycle per period, standing and driving, next to the wake-ups alone.
 
-    .venv/bin/python bench/hwbridge_cycle_cpu.py [--seconds 10] [--board penguinpi|icoboard]
+    .venv/bin/python bench/hwbridge_cycle_cpu.py [--seconds 10] [--board penguinpi|icoboard] [--rest-rate-hz 0]
 
 Starts `icefloe up` with the simulator and hwbridge only (on a free port), so the
 cycle (``python -m icefloe.services.hwbridge.rt``, a process of its own) talks to the
 simulator's board model over the real link: the PenguinPi's pseudo-terminal, or the
 icoBoard's datagram socket. Over a window standing and one driving (`cmd/twist` at
 10 Hz), it reads the cycle's CPU time from /proc and its period count from its
-shared memory (`hw/loop`'s ``cycles``), and prints CPU per period.
+shared memory (`hw/loop`'s ``cycles``), and prints CPU per period and per second. Standing,
+the cycle rests (``hwbridge.rest_rate_hz``, 50 Hz, docs/hwbridge.md): fewer, dearer periods
+(each one a board exchange); ``--rest-rate-hz 0`` keeps it at the full rate, as before.
 
 The reference, in the same windows: a process that does nothing but the cycle's
 wake-ups (`rt.AbsoluteTimer` to an absolute deadline at ``hwbridge.rate_hz``, and
@@ -59,14 +61,15 @@ def cycle_pid(config: Path, runtime_dir: Path, timeout: float = 120.0) -> int:
     raise SystemExit(f"hwbridge's cycle not running after {timeout:.0f} s")
 
 
-def measure(cycle: int, floor: int, shared, seconds: float) -> tuple[float, float, int]:  # type: ignore[no-untyped-def]
-    """CPU µs per period of the cycle and of the floor over ``seconds``, and the periods counted."""
+def measure(cycle: int, floor: int, shared, seconds: float) -> tuple[float, float, int, float]:  # type: ignore[no-untyped-def]
+    """CPU µs per period of the cycle and of the floor over ``seconds``, the periods counted, and
+    the cycle's CPU in % of a core."""
     c0, f0, n0, t0 = cpu_seconds(cycle), cpu_seconds(floor), read_state(shared)["cycles"], time.monotonic()
     time.sleep(seconds)
     c1, f1, n1, t1 = cpu_seconds(cycle), cpu_seconds(floor), read_state(shared)["cycles"], time.monotonic()
     periods = n1 - n0
     floor_periods = (t1 - t0) * RATE  # the floor keeps time as well as the cycle does
-    return 1e6 * (c1 - c0) / periods, 1e6 * (f1 - f0) / floor_periods, periods
+    return 1e6 * (c1 - c0) / periods, 1e6 * (f1 - f0) / floor_periods, periods, 100 * (c1 - c0) / (t1 - t0)
 
 
 RATE = 1000.0
@@ -78,13 +81,16 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=10.0, help="length of each window, s")
     p.add_argument("--board", choices=["penguinpi", "icoboard"], default="penguinpi", help="the simulated board")
     p.add_argument("--settle", type=float, default=5.0, help="wait this long once the cycle runs, s")
+    p.add_argument("--rest-rate-hz", type=float, default=None,
+                   help="hwbridge.rest_rate_hz for the robot (default: the config's; 0: the cycle never rests)")
     args = p.parse_args()
     from icefloe import config as config_mod
     from icefloe.services.hwbridge.shm import Shared, block_name
 
     folder = Path(tempfile.mkdtemp())
     board = ('[board]\nkind = "icoboard"\nprotocol = 2\n' if args.board == "icoboard" else "")
-    config = robot_config(folder, "cyclecpu", 'services = ["sim", "hwbridge"]\n' + board)
+    rest = "" if args.rest_rate_hz is None else f"[hwbridge]\nrest_rate_hz = {args.rest_rate_hz}\n"
+    config = robot_config(folder, f"cyclecpu{os.getpid()}", 'services = ["sim", "hwbridge"]\n' + board + rest)
     cfg = config_mod.load(str(config))
     RATE = cfg.hwbridge.rate_hz
     icefloe = [sys.executable, "-m", "icefloe.cli"]
@@ -128,12 +134,13 @@ def main() -> None:
         up.send_signal(signal.SIGINT)
         with contextlib.suppress(subprocess.TimeoutExpired):
             up.wait(60)
-    print(f"hwbridge cycle at {RATE:g} Hz, {args.board} board (simulated), {args.seconds:g} s a window; "
+    rests = f"resting at {cfg.hwbridge.rest_rate_hz:g} Hz" if cfg.hwbridge.rests else "never resting"
+    print(f"hwbridge cycle at {RATE:g} Hz ({rests}), {args.board} board (simulated), {args.seconds:g} s a window; "
           f"load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
     print(f"  {'':10} {'periods':>8} {'cycle':>12} {'wake-ups alone':>15} {'the work':>12}   (CPU µs per period)")
-    for label, (used, alone, periods) in (("standing", standing), ("driving", driving)):
+    for label, (used, alone, periods, percent) in (("standing", standing), ("driving", driving)):
         print(f"  {label:10} {periods:8d} {used:10.1f} µs {alone:13.1f} µs {used - alone:10.1f} µs   "
-              f"= {used * RATE / 1e4:.1f} % of a core")
+              f"= {percent:.1f} % of a core ({periods / args.seconds:.0f} periods a second)")
 
 
 if __name__ == "__main__":

@@ -224,7 +224,9 @@ def main() -> None:
     if args.course:
         course = [s for s in OPTIONAL_SERVICES if s != "judge"]  # the judge needs a track world (docs/judge.md)
         extra = f"services = {list(ALL_SERVICES) + course!r}\n" + extra
-    config = robot_config(Path(tempfile.mkdtemp()), "cpubench", extra)
+    # A name of its own: two runs at once on one machine would share hwbridge's shared memory
+    # (/dev/shm/icefloe-hwbridge-<robot>), and the second hwbridge would take it from the first.
+    config = robot_config(Path(tempfile.mkdtemp()), f"cpubench{os.getpid()}", extra)
     icefloe = [sys.executable, "-m", "icefloe.cli"]
     up = subprocess.Popen([*icefloe, "up", str(config), "--no-viz"], stdout=subprocess.DEVNULL,
                           stderr=subprocess.DEVNULL, start_new_session=True)

@@ -107,6 +107,11 @@ class Geometry(Section):
     collisions with obstacles; the planner keeps its centre this far from them)."""
 
 
+MIN_REST_RATE_HZ = 25.0
+"""The slowest a resting cycle may run, Hz: the icoBoard's watchdog zeroes its duty after 50 ms
+without a frame (docs/gateware.md), and a frame every 40 ms keeps it quiet."""
+
+
 class Hwbridge(Section):
     rate_hz: Hz = 1000.0
     """Real-time cycle rate. The PenguinPi link cannot hold 1 kHz at 115200 baud; see docs."""
@@ -131,6 +136,31 @@ class Hwbridge(Section):
     """Duty counts per (m/s * s) of integrated error (integral time kp/ki = 0.1 s)."""
     speed_window_s: Seconds = 0.05
     """Measured wheel speed = encoder counts over this window, s (one count is ~0.5 mm)."""
+    rest_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 50.0
+    """Cycle rate while the robot rests, Hz: no motion command, the stop confirmed by the board,
+    the encoders still for ``rest_after_s`` (0, or ``rate_hz`` or more: the cycle never rests).
+    A motion command wakes the cycle at once (SIGUSR1), so resting costs a command no latency;
+    what the rate sets is how often a still robot is watched. 50 Hz: the icoBoard's watchdog wants
+    a frame every 50 ms (hence at least 25 Hz); the PenguinPi alternates its encoders and its polls
+    (battery, button presses, which the board counts, DIP), each 25 times a second; a wheel pushed
+    by hand wakes the cycle within 40 ms; and it is a fifth of the 1 kHz cycle's CPU."""
+    rest_after_s: Annotated[float, Meta(ge=0.1, le=60)] = 1.0
+    """How long the robot must stand (the stop confirmed, the encoders unchanged) before the cycle
+    rests, s: a robot between two commands of a script does not rest and wake each time. At least
+    0.1 s: the bus side wakes a rest once, so a flood of commands costs at most one SIGUSR1 per
+    this long."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if 0 < self.rest_rate_hz < min(MIN_REST_RATE_HZ, self.rate_hz):
+            raise ValueError(f"`rest_rate_hz` must be 0 (never rest) or at least {MIN_REST_RATE_HZ:g} Hz, "
+                             f"got {self.rest_rate_hz:g}: the icoBoard's watchdog stops the wheels after 50 ms "
+                             "without a frame")
+
+    @property
+    def rests(self) -> bool:
+        """Whether the cycle slows down to ``rest_rate_hz`` at rest."""
+        return 0 < self.rest_rate_hz < self.rate_hz
 
 
 class Car(Section):

@@ -253,7 +253,7 @@ class LoopStats(Message):
 
     stamp: int
     rate: float
-    """Cycles per second achieved, Hz."""
+    """Cycles per second achieved, Hz (``hwbridge.rest_rate_hz`` while the cycle rests: the robot stands)."""
     period_mean: float
     """Mean period between cycle starts, s."""
     period_max: float

@@ -99,6 +99,9 @@ def test_extends_loop_is_an_error(tmp_path: Path) -> None:
     ("[hwbridge]\nrate_hz = 0.0", "hwbridge.rate_hz: Expected `float` > 0.0"),
     ("[hwbridge]\nrate_hz = 50_000.0", "hwbridge.rate_hz: Expected `float` <= 10000.0"),
     ("[hwbridge]\nwheels_rate_hz = -1.0", "hwbridge.wheels_rate_hz: Expected `float` >= 0.0"),
+    ("[hwbridge]\nrest_rate_hz = 10.0", "hwbridge: `rest_rate_hz` must be 0 (never rest) or at least 25 Hz, got 10: "
+     "the icoBoard's watchdog stops the wheels after 50 ms without a frame"),
+    ("[hwbridge]\nrest_after_s = 0.0", "hwbridge.rest_after_s: Expected `float` >= 0.1"),
     ("[hwbridge]\nkp = nan", "hwbridge.kp: Expected `float` >= 0.0"),
     ("[hwbridge]\npriority = 100", "hwbridge.priority: Expected `int` <= 99"),
     ("[geometry]\nticks_per_rev = 0", "geometry.ticks_per_rev: Expected `int` >= 1"),

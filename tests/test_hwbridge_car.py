@@ -120,3 +120,20 @@ def test_a_hostile_value_gets_one_short_line(bridge: Bridge) -> None:
     left, right, _ = targets(bridge)
     assert left == right == 0.5
 
+
+
+def test_a_car_command_that_drives_wakes_the_idle_cars_loop(bridge: Bridge) -> None:
+    """An idle car's loop waits for `car_commanded` (``__main__.car_loop``): a cmd/car that drives
+    sets it, from whichever thread it came on; one that is refused does not."""
+    loop = asyncio.get_event_loop()
+    t0 = time.monotonic_ns()
+    bridge.stop("cmd/stop", Origin(t0, "student", 5))
+    assert not bridge.car(m.CarDrive(v=0.2, steer=0.0), Origin(t0 + 1_000_000, "student", 4))
+    loop.run_until_complete(asyncio.sleep(0))
+    assert not bridge.car_commanded.is_set()
+    command = (m.CarDrive(v=0.2, steer=0.3), Origin(t0 + 2_000_000, "student", 6))
+    sender = threading.Thread(target=bridge.car, args=command)  # a Zenoh thread
+    sender.start()
+    sender.join()
+    loop.run_until_complete(asyncio.sleep(0))
+    assert bridge.car_commanded.is_set()

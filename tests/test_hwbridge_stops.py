@@ -68,10 +68,12 @@ class Firmware:
             due = max(due, self._held[-1][0])
         self._held.append((due, data))
 
-    def step(self, left: float = 0.0, right: float = 0.0, stopped: bool = False) -> None:
+    def step(self, left: float = 0.0, right: float = 0.0, stopped: bool = False, host: bool = True) -> None:
+        """``host``: the host's cycle runs in this millisecond (False: a resting cycle's sleep)."""
         while self._held and self._held[0][0] <= self.ms:
             self.end.write(self._held.popleft()[1])
-        self.board.cycle(self.ms * MS, left, right, stopped)
+        if host:
+            self.board.cycle(self.ms * MS, left, right, stopped)
         data = self.end.read()
         if data:
             self.fw.receive(self.tamper(data), self.ms * 1e-3)

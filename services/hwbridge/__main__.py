@@ -52,6 +52,11 @@ EXIT_RT_GONE = 4
 new cycle on a fresh shared-memory block (the old one may hold a write the dead cycle never finished)."""
 HOLD_FILE = "hold.json"
 """The lab's hold, kept in the robot's private run folder across restarts (`hold.HoldState`)."""
+STILL_WHEELS_S = 0.1
+"""``hw/wheels`` of a still robot (a sample that repeats the last one published: the same counts,
+speeds and targets) goes out once per this long, s, not at ``wheels_rate_hz``: odometry reports a
+gap after 0.25 s without a sample (``odometry.gap_s``) and the web API waits for a fresh one, and
+neither learns anything from a repeat. Every sample that changes goes out as it comes."""
 READ_BACKOFF_S = (0.001, 0.1)
 """First and longest wait before reading the cycle's state again after a read was put off
 (`Shared.read_state` gave None: the cycle was descheduled in the middle of a write)."""
@@ -129,6 +134,10 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
     hold_pub = node.publisher(keys.HOLD)
     shared = bridge.shared
     interval = 1.0 / (hw.wheels_rate_hz or hw.rate_hz)
+    # While the cycle rests its state changes at most at the rest rate: no use looking more often.
+    resting_interval = max(interval, 1.0 / hw.rest_rate_hz) if hw.rests else interval
+    last_wheels: tuple[float, ...] = ()
+    next_still = 0.0
     report = LoopReport(_board_name(config))
     last_sample = last_battery = last_presses = 0
     last_dip = last_hold = -1
@@ -147,9 +156,14 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
         if not s["rt_started"]:  # the cycle has not written anything yet
             await asyncio.sleep(interval)
             continue
+        now = time.monotonic()
         if s["sample_ns"] != last_sample and s["stamp"]:
             last_sample = s["sample_ns"]
-            wheels_pub.put(bridge.wheels_message(s))
+            shown = (s["ticks_left"], s["ticks_right"], s["speed_left"], s["speed_right"],
+                     s["target_left"], s["target_right"])
+            if shown != last_wheels or now >= next_still:  # a repeat: once per STILL_WHEELS_S
+                last_wheels, next_still = shown, now + STILL_WHEELS_S
+                wheels_pub.put(bridge.wheels_message(s))
         if s["battery_ns"] != last_battery:
             last_battery = s["battery_ns"]
             battery_pub.put(m.BatteryReading(stamp=time.time_ns(), voltage=s["battery_voltage"],
@@ -158,7 +172,6 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
             buttons_pub.put(m.Buttons(stamp=time.time_ns(), button=3,
                                       presses=s["button_presses"] - last_presses))
         last_presses = s["button_presses"]
-        now = time.monotonic()
         if s["dip"] >= 0 and (s["dip"] != last_dip or now >= next_loop):  # on change, and each second
             dip_pub.put(m.Dip(stamp=time.time_ns(), value=s["dip"]))  # for subscribers that came later
         last_dip = s["dip"]
@@ -170,7 +183,7 @@ async def publish(config: RobotConfig, bridge: Bridge, node: Node) -> None:
             bridge.sync()
             if stats is not None:
                 loop_pub.put(stats)
-        await asyncio.sleep(interval)
+        await asyncio.sleep(resting_interval if shared.rest() else interval)
 
 
 def _board_name(config: RobotConfig) -> str:
@@ -307,19 +320,26 @@ CAR_IDLE_S = 1.0
 
 async def car_loop(config: RobotConfig, bridge: Bridge, node: Node) -> None:
     """The virtual car's steps at ``car.state_rate_hz`` (`Bridge.car_step`: its steering turns at its
-    rate, the wheels follow), and ``car/state``: each step while it moves or steers, else once a second."""
+    rate, the wheels follow), and ``car/state``: each step while it moves or steers, else once a second.
+    A car that neither drives nor steers has no steps to take: the loop then waits for a ``cmd/car``
+    (`Bridge.car_commanded`), or a second, instead of waking 50 times a second for nothing."""
     pub = node.publisher(keys.CAR_STATE)
     period = 1.0 / config.car.state_rate_hz
     last: tuple[float, ...] = ()
     quiet_until = 0.0
     while True:
+        bridge.car_commanded.clear()  # before the step: a cmd/car after it sets it again
         state = bridge.car_step(time.monotonic_ns())
         now = time.monotonic()
         shown = (state.v, state.steer, state.steer_target, state.x, state.y, state.theta, float(state.driving))
         if shown != last or now >= quiet_until:
             pub.put(state)
             last, quiet_until = shown, now + CAR_IDLE_S
-        await asyncio.sleep(period)
+        if state.driving or state.steer != state.steer_target:
+            await asyncio.sleep(period)
+        else:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(bridge.car_commanded.wait(), max(0.0, quiet_until - now))
 
 
 IO_PERIOD_S = 0.02

@@ -80,6 +80,9 @@ class Board:
         """User button (PenguinPi S4) presses since start."""
         self.dip = -1
         """DIP switch value 0..15 (-1 = not read yet)."""
+        self.rest_period_ns = 0
+        """The cycle's period while it rests (`control.RestGate`), ns; 0 while it is awake. A
+        backend that has more to ask than one exchange per period shares them out by it."""
 
     def open(self, now_ns: int) -> None:
         """Connect and handshake; raises `BoardError` (retried) or `BoardMismatch` (fatal)."""

@@ -87,9 +87,13 @@ class Bridge:
         self.epoch = 0
         self.rt_pid: int | None = None
         """The running real-time process (set by its supervisor), for `kick`."""
+        self.woken = 0
+        """The number of the cycle's last rest that a motion command woke it from (`wake`)."""
         self._lock = threading.Lock()
         """Commands and stops arrive on Zenoh threads and the event loop: one writer at a time."""
         self._loop = asyncio.get_running_loop()
+        self.car_commanded = asyncio.Event()
+        """Set when a ``cmd/car`` drives: the car's loop, idle, waits for it (``__main__.car_loop``)."""
         self._motion: asyncio.Future[str] | None = None
         """Set while a timed motion runs; resolved with the reason it was cut short."""
         self._waiting: list[tuple[int, asyncio.Future[dict]]] = []
@@ -133,6 +137,7 @@ class Bridge:
             self.limited.warning(f"order:{source}", f"{source}: not applied: {why}")
             return False
         self.sync()
+        self.wake()
         self._cut(f"another command on {source}")
         return True
 
@@ -162,12 +167,15 @@ class Bridge:
         if why:
             self.limited.warning(f"order:{source}", f"{source}: not applied: {why}")
             return False
+        with contextlib.suppress(RuntimeError):  # the loop is closing
+            self._loop.call_soon_threadsafe(self.car_commanded.set)
         if made.clipped:
             self.limited.warning(f"clip:{source}", f"{source}: steer {msg.steer:.4g} rad is beyond car.max_steer "
                                  f"({self.config.car.max_steer:g} rad): clipped to {made.steer_target:.3f} rad")
         if wheels.slowed:
             self._say_slowed(wheels)
         self.sync()
+        self.wake()
         self._cut(f"another command on {source}")
         return True
 
@@ -199,6 +207,7 @@ class Bridge:
             self._say_slowed(model.wheels)
         if changed:
             self.sync()
+            self.wake()
         return state
 
     def _park_car(self, now_ns: int) -> None:
@@ -295,6 +304,19 @@ class Bridge:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGUSR1)
 
+    def wake(self) -> None:
+        """After a motion command is written: wake the cycle (SIGUSR1) if it rests, so the command
+        drives now, not at the end of the rest's period (20 ms at 50 Hz). Once per rest: the cycle
+        either wakes, or (a stop, nothing new) rests on under a new number, so a flood of commands
+        costs one signal, and a stop never waits on this (a resting robot is stopped already)."""
+        rest = self.shared.rest()  # the cycle's handler is in place before it writes this word
+        pid = self.rt_pid
+        if not rest or rest == self.woken or pid is None:
+            return
+        self.woken = rest
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGUSR1)
+
     def _cut(self, why: str) -> None:
         """End a running timed motion (from any thread)."""
         if threading.current_thread() is threading.main_thread():
@@ -359,6 +381,7 @@ class Bridge:
                 return
             self._drive(left, right, time.monotonic_ns())
         self.sync()
+        self.wake()
 
     async def halt(self, msg: m.Halt, number: int) -> m.Wheels:
         """Answer a ``cmd/halt`` whose stop ``number`` is latched: once the board has confirmed

@@ -132,6 +132,45 @@ def gate(fresh_ns: int, stop: bool, now_ns: int, deadman_ns: int) -> int:
     return STOP_NONE
 
 
+class RestGate:
+    """Whether the cycle may rest: run at ``hwbridge.rest_rate_hz`` instead of ``rate_hz``.
+
+    It may once the robot has stood for ``after_ns``: zero targets (a stop, the deadman, no
+    command yet, or a command of zero speed), the board's confirmation that it drives zero duty,
+    and encoder counts that have not changed. A new motion command (its issue time ``fresh_ns``
+    changes, whatever its speed), a wheel that turns (pushed by hand), or the confirmation lost
+    (the link) ends the rest at once and starts the wait again. A stop does not: a resting robot
+    is stopped already.
+    """
+
+    def __init__(self, after_ns: int) -> None:
+        self.after_ns = after_ns
+        self.resting = False
+        self._still_since = -1
+        """CLOCK_MONOTONIC ns since which the robot stands (-1: it does not)."""
+        self.fresh_ns = 0
+        """The issue time of the latest motion command seen (`update`), CLOCK_MONOTONIC ns."""
+        self._left = self._right = 0
+
+    def update(self, now_ns: int, stopped: bool, confirmed: bool, fresh_ns: int,
+               ticks_left: int, ticks_right: int) -> bool:
+        """One period's evidence (``stopped``: zero targets; ``confirmed``: the board confirmed
+        zero duty); returns whether the cycle rests from now on."""
+        moved = fresh_ns != self.fresh_ns or ticks_left != self._left or ticks_right != self._right
+        self.fresh_ns, self._left, self._right = fresh_ns, ticks_left, ticks_right
+        if not (stopped and confirmed):
+            self._still_since = -1
+        elif moved or self._still_since < 0:
+            self._still_since = now_ns  # standing from now on
+        self.resting = self._still_since >= 0 and now_ns - self._still_since >= self.after_ns
+        return self.resting
+
+    def wake(self) -> None:
+        """A motion command came while resting (the bus side's kick): rest no more, wait again."""
+        self.resting = False
+        self._still_since = -1
+
+
 # --------------------------------------------------------------------------- measurement
 
 

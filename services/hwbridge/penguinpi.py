@@ -322,9 +322,10 @@ class PenguinPiBoard(Board):
                     self._request(kind, now_ns, first)
                 else:
                     self._write(first)
-            # Keep the rate without drifting, but never try to catch up a backlog.
-            self._next_exchange = max(self._next_exchange + self.exchange_period_ns,
-                                      now_ns + self.exchange_period_ns // 2)
+            # Keep the rate without drifting, but never try to catch up a backlog. While the
+            # cycle rests, every other period: the polls between (battery, button, DIP) take turns.
+            period = max(self.exchange_period_ns, 2 * self.rest_period_ns)
+            self._next_exchange = max(self._next_exchange + period, now_ns + period // 2)
         elif stopped and self._gain_taken_ns and (kind := self._unread_gain()) is not None:
             self._request(kind, now_ns, first)
         elif self._outbox:

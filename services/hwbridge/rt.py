@@ -28,6 +28,16 @@ it sends this process ``SIGUSR1``, which ends the sleep early, and the cycle
 sends the stop to the board at once (`Cycle.stop_now`), unless the next
 period is due within an eighth of a period. Motion commands wait for the next period.
 
+At rest the cycle rests: once the robot has stood for ``hwbridge.rest_after_s`` (zero targets,
+zero duty confirmed by the board, the encoders unchanged: `control.RestGate`) it runs at
+``hwbridge.rest_rate_hz`` (50 Hz) and says so in the shared memory's rest word. The bus side
+then sends SIGUSR1 for the first motion command it writes (`Bridge.wake`), and the cycle runs
+its next period at once, at the full rate (`Cycle.wake`): a command from rest waits no longer
+than one from a running cycle. A stop at rest needs no period (the wheels are at zero duty,
+confirmed) and is confirmed at once. A wheel turned by hand, or the board's confirmation lost,
+ends the rest at the next rest period. The longer sleep is not an overrun; ``hw/loop`` shows
+the rate the cycle ran at.
+
 Where the OS allows it: ``SCHED_FIFO`` at ``hwbridge.priority``, ``mlockall``,
 pinned to ``hwbridge.cpu``; what is withheld is one warning line, and the cycle carries on. The garbage
 collector is disabled and every object made during setup is frozen; the cycle
@@ -53,7 +63,7 @@ from icefloe.config import RobotConfig
 from icefloe.errors import BoardError, BoardMismatch
 
 from .board import MSG_ERROR, MSG_INFO, MSG_WARNING, Board, Say, make_board
-from .control import STOP_LATCHED, STOP_NONE, SlewLimiter, gate, hist_bin
+from .control import STOP_LATCHED, STOP_NONE, RestGate, SlewLimiter, gate, hist_bin
 from .shm import Shared
 
 CLOCK_MONOTONIC = 1
@@ -142,6 +152,13 @@ class Cycle:
         self.config = config
         self.shared = shared
         self.period_ns = round(1e9 / hw.rate_hz)
+        """The period now: ``rate_hz``'s, or ``rest_rate_hz``'s while the cycle rests."""
+        self.awake_period_ns = self.period_ns
+        self.rest_period_ns = round(1e9 / hw.rest_rate_hz) if hw.rests else 0
+        self.rest = RestGate(round(hw.rest_after_s * 1e9)) if hw.rests else None
+        """When the cycle may rest (None: it never does, ``hwbridge.rest_rate_hz``)."""
+        self.rests = 0
+        """Rests begun since start (the shared memory's rest word holds the current one's number)."""
         self.deadman_ns = round(hw.deadman_s * 1e9)
         self.max_speed = hw.max_wheel_speed
         self.board = board or make_board(config, self.say)
@@ -209,7 +226,50 @@ class Cycle:
         self._board_step(now_ns, stopped)
         self._confirm(stop, stop_seq)
         self._forward_io()
+        if self.rest is not None:
+            self._rest(now_ns, stopped, fresh_ns)
         self._publish_news()
+
+    def _rest(self, now_ns: int, stopped: bool, fresh_ns: int) -> None:
+        """Rest, or wake, as the period's evidence says (`control.RestGate`)."""
+        b = self.board
+        was = self.rest.resting
+        if self.rest.update(now_ns, stopped, self.link_up and b.stop_confirmed, fresh_ns,
+                            b.ticks_left, b.ticks_right) == was:
+            return
+        if was:  # a wheel turned by hand, the link or the confirmation lost
+            self._set_period(0)
+            return
+        self.rests += 1
+        self._set_period(self.rests)
+        # The bus side wakes a resting cycle for each motion command; one written after this
+        # period read the commands and before the rest word said so was not woken for: look.
+        if self.shared.commands_pending():
+            self.kicked = True
+
+    def _set_period(self, rest: int) -> None:
+        """Run at the rest period (``rest``: the rest's number) or the awake one (0), and say so."""
+        self.period_ns = self.rest_period_ns if rest else self.awake_period_ns
+        self.board.rest_period_ns = self.rest_period_ns if rest else 0
+        self.shared.set_rest(rest)
+
+    def wake(self, now_ns: int) -> bool:
+        """A kick (SIGUSR1) while resting: True if a motion command came, so the next period runs
+        now, at the awake rate. A stop needs no period: the wheels are at zero duty, confirmed
+        (that is what resting means), so it is confirmed at once, as the next period would."""
+        commands = self.shared.read_commands()
+        if commands is not None and commands[2] == self.rest.fresh_ns:  # no new motion command
+            confirmed = self.confirmed
+            self._confirm(commands[3], commands[5])
+            if self.confirmed != confirmed:
+                self._publish()
+            self.rests += 1  # rests on under a new number: the bus side may wake it again
+            self.shared.set_rest(self.rests)
+            return False
+        self.rest.wake()
+        self._set_period(0)
+        self._last_wake = now_ns - self.period_ns  # the ramp's first step is one period's, not the rest's
+        return True
 
     def _confirm(self, stop: int, stop_seq: int) -> None:
         """Report stop ``stop_seq`` confirmed once the board is verified at rest duty."""
@@ -308,14 +368,18 @@ class Cycle:
     # ------------------------------------------------------------------ the loop
 
     def run(self, timer: AbsoluteTimer) -> None:
-        period = self.period_ns
         hist = self.shared.hist
-        deadline = time.monotonic_ns() + period
-        self._last_wake = deadline - period
+        deadline = time.monotonic_ns() + self.period_ns
+        self._last_wake = deadline - self.period_ns
         while not self.stopping:
             if self.kicked:  # SIGUSR1 woke us early, or came while we were busy
                 self.kicked = False
-                self.stop_now(time.monotonic_ns(), deadline)
+                now = time.monotonic_ns()
+                if self.rest is not None and self.rest.resting:
+                    if self.wake(now):
+                        deadline = now  # a motion command: its period now, not at the rest's end
+                else:
+                    self.stop_now(now, deadline)
             timer.sleep_until(deadline)
             woke = time.monotonic_ns()
             if woke < deadline:
@@ -335,6 +399,7 @@ class Cycle:
             if self.cycles % 500 == 0 and os.getppid() != self._parent:
                 self.say(MSG_WARNING, "bus process is gone: stopping")
                 break
+            period = self.period_ns  # the rest's while resting: its longer sleep is no overrun
             deadline += period
             end = time.monotonic_ns()
             if end > deadline:

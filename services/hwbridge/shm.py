@@ -18,6 +18,9 @@ state      RT process              encoder sample, speeds, targets, loop and
 histogram  RT process              wake-up latency counts (`control.hist_bin`)
 messages   RT process (head)       board text lines and the RT process's own
                                    log lines, read by the bus process
+rest       RT process              the number of the cycle's current rest (0:
+                                   awake), so the bus side wakes it for a
+                                   motion command (`Shared.rest`)
 =========  ======================  =========================================
 
 Snapshots (commands, state) are protected by a **seqlock**: the writer makes
@@ -117,13 +120,15 @@ OFF_STATE = OFF_STATE_SEQ + 8
 OFF_HIST = OFF_STATE + STATE.size
 OFF_MSG_HEAD = OFF_HIST + 8 * HIST_BINS
 OFF_MSG = OFF_MSG_HEAD + 8
-SIZE = OFF_MSG + MSG_SLOTS * MSG_SLOT.size
+OFF_REST = OFF_MSG + MSG_SLOTS * MSG_SLOT.size
+"""The cycle's rest: one word, read by the bus side at each motion command (`Shared.rest`)."""
+SIZE = OFF_REST + 8
 
 assert len(STATE_FIELDS) == len(STATE.format) - 1, "STATE format and field list disagree"
-assert all(off % 8 == 0 for off in (OFF_CMD, OFF_IO, OFF_STATE, OFF_HIST, OFF_MSG, SIZE)), "unaligned"
+assert all(off % 8 == 0 for off in (OFF_CMD, OFF_IO, OFF_STATE, OFF_HIST, OFF_MSG, OFF_REST, SIZE)), "unaligned"
 assert sys.byteorder == "little", "the words below and the little-endian layouts above must agree"
-W_CMD_SEQ, W_IO_HEAD, W_IO_TAIL, W_STATE_SEQ, W_MSG_HEAD = (off // 8 for off in (
-    OFF_CMD_SEQ, OFF_IO_HEAD, OFF_IO_TAIL, OFF_STATE_SEQ, OFF_MSG_HEAD))
+W_CMD_SEQ, W_IO_HEAD, W_IO_TAIL, W_STATE_SEQ, W_MSG_HEAD, W_REST = (off // 8 for off in (
+    OFF_CMD_SEQ, OFF_IO_HEAD, OFF_IO_TAIL, OFF_STATE_SEQ, OFF_MSG_HEAD, OFF_REST))
 """The same words as indices into `Shared.words` (the block as 8-byte integers): what the cycle
 reads and writes every period goes through that view, a third of the cost of `struct` calls."""
 
@@ -286,6 +291,10 @@ class Shared:
         self.stalled_reads += 1
         return None
 
+    def commands_pending(self) -> bool:
+        """RT side: whether a write was published since `read_commands` last read one."""
+        return self.words[W_CMD_SEQ] != self._cmd_version
+
     # ------------------------------------------------------------------ io ring (bus -> RT)
 
     def push_io(self, kind: int, a: int = 0, b: int = 0, data: bytes = b"") -> bool:
@@ -324,6 +333,17 @@ class Shared:
         write (see `_read`)."""
         values = self._read(OFF_STATE_SEQ, STATE, OFF_STATE)
         return None if values is None else dict(zip(STATE_FIELDS, values, strict=True))
+
+    # ------------------------------------------------------------------ rest (RT -> bus)
+
+    def set_rest(self, number: int) -> None:
+        """RT side: the cycle rests (its ``number``-th rest since start, from 1), or is awake (0)."""
+        self.words[W_REST] = number
+
+    def rest(self) -> int:
+        """Bus side: the number of the cycle's current rest, 0 while it is awake. One word, one
+        load: cheap enough to ask at every motion command (a new number: wake it, `Bridge`)."""
+        return self.words[W_REST]
 
     # ------------------------------------------------------------------ messages (RT -> bus)
 
