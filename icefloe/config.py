@@ -170,6 +170,21 @@ class Camera(Section):
     detection_rate_hz: Annotated[float, Meta(ge=0, le=120)] = 0.0
     """Frames searched for markers a second, the camera's main cost (0 = every captured frame;
     at most ``fps``). The PenguinPi's Raspberry Pi 3B: deploy/robots/penguin1.toml."""
+    rest_detection_rate_hz: Annotated[float, Meta(gt=0, le=120)] = 1.0
+    """Frames searched for markers a second while the camera rests, Hz: its picture has not changed
+    (``still_threshold``) for ``rest_after_s``. A still robot sees the same markers in every frame;
+    1 Hz keeps the localizer, SLAM and the map maker seeing them (and a client's 5 s wait for
+    ``camera/landmarks`` met) at a fifteenth of the cost. At least ``detection_rate_hz`` (or ``fps``)
+    means the camera never rests. docs/camera.md, "The camera at rest"."""
+    rest_after_s: Annotated[float, Meta(ge=0, le=3600)] = 1.0
+    """The picture must stay still this long before the camera rests, s: a robot pausing between two
+    moves keeps its full detection rate, and the localizer gets a second of sightings of a new view."""
+    still_threshold: Annotated[float, Meta(gt=0, le=10)] = 0.25
+    """The largest change of one cell of the picture's 32 x 24 thumbnail, in the picture's mean
+    brightness, that still counts as the same picture (services/camera/rest.py). Measured by
+    bench/camera_rest.py: a standing robot's frames differ by up to 0.1 (sensor noise, flicker,
+    JPEG), a robot turning at 0.5 rad/s crosses 0.25 within two frames, a marker carried into view
+    changes its cells by 0.5 or more."""
     image_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 2.0
     """Rate of ``camera/image`` on the bus (Wi-Fi is shared by a class)."""
     image_width: Count = 320
@@ -197,6 +212,9 @@ class Camera(Section):
         if self.detection_rate_hz > self.fps:
             raise ValueError(f"detection_rate_hz ({self.detection_rate_hz:g}) must be at most fps ({self.fps:g}): "
                              "detection cannot search frames that were never captured")
+        if self.rest_detection_rate_hz > self.fps:
+            raise ValueError(f"rest_detection_rate_hz ({self.rest_detection_rate_hz:g}) must be at most fps "
+                             f"({self.fps:g}): detection cannot search frames that were never captured")
         if self.image_width > self.width or self.image_height > self.height:
             raise ValueError(f"image_width x image_height ({self.image_width}x{self.image_height}) must fit in "
                              f"width x height ({self.width}x{self.height}): the images are the frames made smaller")

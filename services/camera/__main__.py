@@ -8,6 +8,10 @@
   time (its arrival less the capture latency the calibration measured, if it did). It is the
   camera's main cost, about proportional to the frame's pixels times that rate: a robot's config
   chooses it (docs/camera.md, "What the camera costs").
+* **At rest** it searches fewer: while its picture does not change (a small grey thumbnail of
+  each frame due, compared with the still spell's first: rest.py) for ``camera.rest_after_s``,
+  only ``camera.rest_detection_rate_hz`` frames a second; the first frame that differs is
+  searched at once and ends the rest (docs/camera.md, "The camera at rest").
 * ``camera/image``: a smaller JPEG at ``camera.image_rate_hz`` (the Wi-Fi is shared
   by a class); ``camera/snapshot``: one full-resolution JPEG of the latest frame.
 * ``camera/frames``: every captured frame as the smaller JPEG, sent by the capture thread
@@ -37,6 +41,7 @@ from icefloe.worldmap import load_world
 
 from .detection import make_detector
 from .frames import Frames, camera_info
+from .rest import DetectionRest, thumbnail
 from .sources import Retimed, SimSource, open_camera
 
 SNAPSHOT_QUALITY = 90
@@ -100,6 +105,7 @@ async def main(config: RobotConfig) -> None:
         detection_period = 1.0 / cam.detection_hz
         early = 0.5 / cam.fps  # a frame this early is the one due: frames come at fps, with jitter
         every_frame = cam.detection_rate_hz == 0
+        rest = DetectionRest(cam.still_threshold, cam.rest_after_s, 1.0 / cam.rest_detection_rate_hz)
         try:
             async for frame in capture.frames("camera: %d frames captured, %d taken, %d dropped (detection behind)"):
                 now = time.monotonic()
@@ -107,8 +113,9 @@ async def main(config: RobotConfig) -> None:
                 if every_frame or now + early >= next_detection:  # else passed over: detection_rate_hz
                     # on the schedule (the rate holds on average), or from now after a stall
                     next_detection = max(next_detection + detection_period, now)
-                    found = await asyncio.to_thread(detector.detect, image)
-                    landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
+                    if rest.search(thumbnail(image), now + early):  # else resting: the picture is still
+                        found = await asyncio.to_thread(detector.detect, image)
+                        landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
                 if now >= next_image:
                     next_image = now + image_period
                     images.put(await asyncio.to_thread(small.of, frame))
