@@ -340,7 +340,12 @@ class Odometry(Section):
     """Dead reckoning from the wheel encoders (services/odometry, docs/odometry.md)."""
 
     rate_hz: Hz = 50.0
-    """Rate of ``odom/pose`` on the bus, Hz."""
+    """Rate of ``odom/pose`` on the bus while the pose changes, Hz."""
+    rest_rate_hz: Hz = 4.0
+    """Rate of ``odom/pose`` while the pose does not change (the robot stands), Hz: a heartbeat
+    (`icefloe.heartbeat`). 4 Hz is a pose every 0.25 s, twice within the follower's
+    ``pose_timeout_s`` (0.5 s) and four times within the web API's bus timeout (1 s); a change is
+    published at once. At least ``rate_hz`` means a pose every period, as before."""
     max_wheel_speed: Positive = 1.0
     """Plausibility limit, m/s: a count step faster than this (plus `jump_margin`) is a glitch, not motion."""
     jump_margin: NonNegative = 0.005
@@ -355,7 +360,13 @@ class Localizer(Section):
     world: str = "lab"
     """Landmark map: a world name (``lab``: ``deploy/worlds/lab.toml`` or your own, see `icefloe.paths`) or a path."""
     rate_hz: Hz = 20.0
-    """Steady rate of ``loc/pose``, Hz (it is also published after every landmark update)."""
+    """Steady rate of ``loc/pose`` while the estimate changes (odometry moved), Hz (it is also
+    published after every landmark frame)."""
+    rest_rate_hz: Hz = 4.0
+    """Rate of ``loc/pose`` while neither odometry nor the landmarks changed the estimate, Hz: a
+    heartbeat (`icefloe.heartbeat`). 4 Hz is a pose every 0.25 s, twice within the follower's
+    ``pose_timeout_s`` (0.5 s); a change is published at once. At least ``rate_hz`` means a pose
+    every period, as before."""
     init: Literal["config", "landmarks"] = "config"
     """Initial pose: "config" = initial_* below; "landmarks" = solved from the first frame with >= 2 known markers."""
     initial_x: float = 0.0
