@@ -106,6 +106,7 @@ async def main(config: RobotConfig) -> None:
         early = 0.5 / cam.fps  # a frame this early is the one due: frames come at fps, with jitter
         every_frame = cam.detection_rate_hz == 0
         rest = DetectionRest(cam.still_threshold, cam.rest_after_s, 1.0 / cam.rest_detection_rate_hz)
+        never_rests = cam.rest_detection_rate_hz >= cam.detection_hz  # no thumbnails either
         try:
             async for frame in capture.frames("camera: %d frames captured, %d taken, %d dropped (detection behind)"):
                 now = time.monotonic()
@@ -113,7 +114,7 @@ async def main(config: RobotConfig) -> None:
                 if every_frame or now + early >= next_detection:  # else passed over: detection_rate_hz
                     # on the schedule (the rate holds on average), or from now after a stall
                     next_detection = max(next_detection + detection_period, now)
-                    if rest.search(thumbnail(image), now + early):  # else resting: the picture is still
+                    if never_rests or rest.search(thumbnail(image), now + early):  # else resting: still picture
                         found = await asyncio.to_thread(detector.detect, image)
                         landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
                 if now >= next_image:
