@@ -42,7 +42,7 @@ from icefloe.worldmap import load_world
 from .detection import make_detector
 from .frames import Frames, camera_info
 from .rest import DetectionRest, thumbnail
-from .sources import Retimed, SimSource, open_camera
+from .sources import open_camera
 
 SNAPSHOT_QUALITY = 90
 """JPEG quality of ``camera/snapshot`` (calibration images: sharper than the stream's)."""
@@ -68,7 +68,10 @@ async def main(config: RobotConfig) -> None:
             if stream.matched:  # someone watches: ~2 ms at 320x240, no cost otherwise
                 stream.put(small.of(frame))
 
-        capture = Capture("camera", cam.source, lambda: open_camera(config, latency_s), cam.width, cam.height,
+        # the simulated camera reads the newest sim/truth at each frame it renders (one decoded a frame)
+        truth = node.latest(keys.TRUTH) if cam.source == "sim" else None
+        capture = Capture("camera", cam.source, lambda: open_camera(config, latency_s, truth.get if truth else None),
+                          cam.width, cam.height,
                           log=node.log,
                           limited=node.limited, thread_name="camera-capture", on_frame=send_while_watched)
 
@@ -90,16 +93,7 @@ async def main(config: RobotConfig) -> None:
         node.queryable(keys.FRAME, latest_small)
         node.queryable(keys.CAMERA_INFO, intrinsics)
 
-        async def feed_truth() -> None:  # only for the simulated camera
-            async for truth in node.subscribe(keys.TRUTH):
-                source = capture.source
-                if isinstance(source, Retimed):
-                    source = source.source
-                if isinstance(source, SimSource):
-                    source.set_truth(truth)
-
         capture.start()
-        truth_task = asyncio.create_task(feed_truth()) if cam.source == "sim" else None
         image_period = 1.0 / cam.image_rate_hz if cam.image_rate_hz > 0 else float("inf")
         next_image = next_detection = time.monotonic()
         detection_period = 1.0 / cam.detection_hz
@@ -121,8 +115,6 @@ async def main(config: RobotConfig) -> None:
                     next_image = now + image_period
                     images.put(await asyncio.to_thread(small.of, frame))
         finally:
-            if truth_task is not None:
-                truth_task.cancel()
             await capture.close()
 
 
