@@ -62,11 +62,11 @@ BUDGETS: dict[str, tuple[float, float]] = {
     "info": (0.5, 0.5),            # a queryable nobody asks
     "launcher": (0.5, 0.5),        # `icefloe up` waiting on its children
     "forkserver": (0.5, 0.5),      # waits for a request: none once the robot runs
-    "odometry": (3.0, 3.0),        # 100 Hz wheels in, 50 Hz pose out
-    "localizer": (5.0, 5.0),       # 50 Hz pose and 15 Hz landmarks in, 20 Hz pose out
+    "odometry": (3.0, 3.0),        # 100 Hz wheels in, 50 Hz pose out (4 Hz standing)
+    "localizer": (5.0, 5.0),       # 50 Hz pose and 15 Hz landmarks in, 20 Hz pose out (4 Hz, 1 Hz, 5 Hz standing)
     "hwbridge": (4.0, 4.0),        # the bus side: 100 Hz wheels, 10 Hz battery, commands
     "hwbridge (cycle)": (14.0, 14.0),  # the 1 kHz real-time cycle and its board exchange
-    "camera": (15.0, 15.0),        # ArUco detection at 15 fps, a 2 Hz JPEG
+    "camera": (15.0, 15.0),        # ArUco detection at 15 fps (1 Hz standing), a 2 Hz JPEG
     "router": (5.0, 6.0),          # every message of the robot passes through it
     "sim": (25.0, 25.0),           # bench/sim_cpu.py's goal
     "sim (camera renderer)": (20.0, 20.0),
