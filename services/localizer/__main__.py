@@ -34,7 +34,7 @@ async def main(config: RobotConfig) -> None:
         loc = Localizer(config, node.log)  # ConfigError for a bad world file: run() says so, exits
         period = 1.0 / config.localizer.rate_hz
         pub = node.publisher(keys.LOC_POSE)
-        heartbeat = Heartbeat(1.0 / config.localizer.rest_rate_hz)
+        heartbeat = Heartbeat(1.0 / config.localizer.rest_rate_hz, slack_s=period / 2)
         published = [-1]  # loc.changes when loc/pose was last published
         node.log.info("localizer: %d landmarks from %s, init %s", len(loc.ekf.landmarks),
                       config.localizer.world, config.localizer.init)

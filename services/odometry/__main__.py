@@ -40,7 +40,7 @@ async def main(config: RobotConfig) -> None:
     async with Node("odometry", config) as node:
         events = EventLog(node.log)
         pose_pub = node.publisher(keys.ODOM_POSE)
-        heartbeat = Heartbeat(1.0 / config.odometry.rest_rate_hz)
+        heartbeat = Heartbeat(1.0 / config.odometry.rest_rate_hz, slack_s=period / 2)
         published: list[tuple[float, ...]] = [()]  # the pose last published, less its stamp
 
         def publish_if_due(pose: m.Pose, *, changed: bool | None = None) -> None:
