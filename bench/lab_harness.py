@@ -200,7 +200,9 @@ class Lab:
             f"wheels_rate_hz = {r.wheels_hz}\n"
             # Spread the robots' real-time cycles over the CPUs (a real lab has one Pi each).
             f"cpu = {cpus[i % len(cpus)]}\n\n"
-            f"[odometry]\nrate_hz = {r.odom_hz}\n\n"
+            # The pose at its rate standing too (no 4 Hz heartbeat at rest): lab_scale.py checks every
+            # robot's odom/pose against rate_hz, the undriven ones as the driven, as the lab's load.
+            f"[odometry]\nrate_hz = {r.odom_hz}\nrest_rate_hz = {r.odom_hz}\n\n"
             f"[sim]\nseed = {i + 1}\ncamera = false\n\n"
             f"{extra}\n\n"
             f"[zenoh]\n{zenoh}access_control = true\ncredentials = \"{creds}\"\n"

@@ -200,6 +200,21 @@ class Camera(Section):
     detection_rate_hz: Annotated[float, Meta(ge=0, le=120)] = 0.0
     """Frames searched for markers a second, the camera's main cost (0 = every captured frame;
     at most ``fps``). The PenguinPi's Raspberry Pi 3B: deploy/robots/penguin1.toml."""
+    rest_detection_rate_hz: Annotated[float, Meta(gt=0, le=120)] = 1.0
+    """Frames searched for markers a second while the camera rests, Hz: its picture has not changed
+    (``still_threshold``) for ``rest_after_s``. A still robot sees the same markers in every frame;
+    1 Hz keeps the localizer, SLAM and the map maker seeing them (and a client's 5 s wait for
+    ``camera/landmarks`` met) at a fifteenth of the cost. At least ``detection_rate_hz`` (or ``fps``)
+    means the camera never rests. docs/camera.md, "The camera at rest"."""
+    rest_after_s: Annotated[float, Meta(ge=0, le=3600)] = 1.0
+    """The picture must stay still this long before the camera rests, s: a robot pausing between two
+    moves keeps its full detection rate, and the localizer gets a second of sightings of a new view."""
+    still_threshold: Annotated[float, Meta(gt=0, le=10)] = 0.25
+    """The largest change of one cell of the picture's 32 x 24 thumbnail, in the picture's mean
+    brightness, that still counts as the same picture (services/camera/rest.py). Measured by
+    bench/camera_rest.py: a standing robot's frames differ by up to 0.15 (sensor noise, flicker,
+    JPEG), a robot turning at 0.5 rad/s crosses 0.25 within two frames, a marker 24 to 40 px wide put
+    into a still picture changed it by 0.7 to 0.9."""
     image_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 2.0
     """Rate of ``camera/image`` on the bus (Wi-Fi is shared by a class)."""
     image_width: Count = 320
@@ -227,6 +242,9 @@ class Camera(Section):
         if self.detection_rate_hz > self.fps:
             raise ValueError(f"detection_rate_hz ({self.detection_rate_hz:g}) must be at most fps ({self.fps:g}): "
                              "detection cannot search frames that were never captured")
+        if self.rest_detection_rate_hz > self.fps:
+            raise ValueError(f"rest_detection_rate_hz ({self.rest_detection_rate_hz:g}) must be at most fps "
+                             f"({self.fps:g}): detection cannot search frames that were never captured")
         if self.image_width > self.width or self.image_height > self.height:
             raise ValueError(f"image_width x image_height ({self.image_width}x{self.image_height}) must fit in "
                              f"width x height ({self.width}x{self.height}): the images are the frames made smaller")
@@ -352,7 +370,12 @@ class Odometry(Section):
     """Dead reckoning from the wheel encoders (services/odometry, docs/odometry.md)."""
 
     rate_hz: Hz = 50.0
-    """Rate of ``odom/pose`` on the bus, Hz."""
+    """Rate of ``odom/pose`` on the bus while the pose changes, Hz."""
+    rest_rate_hz: Hz = 4.0
+    """Rate of ``odom/pose`` while the pose does not change (the robot stands), Hz: a heartbeat
+    (`icefloe.heartbeat`). 4 Hz is a pose every 0.25 s, twice within the follower's
+    ``pose_timeout_s`` (0.5 s) and four times within the web API's bus timeout (1 s); a change is
+    published at once. At least ``rate_hz`` means a pose every period, as before."""
     max_wheel_speed: Positive = 1.0
     """Plausibility limit, m/s: a count step faster than this (plus `jump_margin`) is a glitch, not motion."""
     jump_margin: NonNegative = 0.005
@@ -367,7 +390,13 @@ class Localizer(Section):
     world: str = "lab"
     """Landmark map: a world name (``lab``: ``deploy/worlds/lab.toml`` or your own, see `icefloe.paths`) or a path."""
     rate_hz: Hz = 20.0
-    """Steady rate of ``loc/pose``, Hz (it is also published after every landmark update)."""
+    """Steady rate of ``loc/pose`` while the estimate changes (odometry moved), Hz (it is also
+    published after every landmark frame)."""
+    rest_rate_hz: Hz = 4.0
+    """Rate of ``loc/pose`` while neither odometry nor the landmarks changed the estimate, Hz: a
+    heartbeat (`icefloe.heartbeat`). 4 Hz is a pose every 0.25 s, twice within the follower's
+    ``pose_timeout_s`` (0.5 s); a change is published at once. At least ``rate_hz`` means a pose
+    every period, as before."""
     init: Literal["config", "landmarks"] = "config"
     """Initial pose: "config" = initial_* below; "landmarks" = solved from the first frame with >= 2 known markers."""
     initial_x: float = 0.0

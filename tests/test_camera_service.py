@@ -107,7 +107,9 @@ async def test_detection_runs_at_its_configured_rate_not_the_capture_rate(make_r
     folder = tmp_path / "frames"
     folder.mkdir()
     cv2.imwrite(str(folder / "good.png"), np.full((480, 640, 3), 200, np.uint8))
-    robot = make_robot(f'[camera]\nsource = "{folder}"\nfps = 20.0\ndetection_rate_hz = 5.0\n')
+    # one still picture: rest_detection_rate_hz at fps, or the camera would rest (test_camera_rest_service.py)
+    robot = make_robot(f'[camera]\nsource = "{folder}"\nfps = 20.0\ndetection_rate_hz = 5.0\n'
+                       'rest_detection_rate_hz = 20.0\n')
     camera = robot.start("camera")
     async with robot.node("tester") as node:
         marks = node.subscribe(keys.LANDMARKS, latest=False, maxsize=1000)

@@ -120,6 +120,30 @@ async def test_odometry_process_integrates_resets_and_survives_bad_input(robot) 
         assert abs(pose.y - (before[1] + 6 * K)) < 1e-9
         assert proc.alive()
 
+        # At rest (issue 35): samples that do not move the wheels, then none at all, give only the
+        # heartbeat (odometry.rest_rate_hz, 4 Hz); a moving sample after it is published at once.
+        # Measured (2026-12-07, load average 4.3, three runs): 4 poses in 1.2 s of still samples, 5 with
+        # none; the moving sample's pose seen 51-56 ms after it was sent (wait_for looks every 50 ms);
+        # bounds: 2 to 7 poses, and within 0.2 s (a period is 20 ms; the heartbeat's 250 ms would fail).
+        for _ in range(20):  # 0.2 s still: v and w (over odometry.speed_window_s, 0.1 s) come to 0
+            feed.send(0, 0)
+        await wait_for(lambda: feed.poses[-1].v == 0.0 and feed.poses[-1].stamp >= feed.stamp)
+        for still in (True, False):
+            count = len(feed.poses)
+            until = time.monotonic() + 1.2
+            while time.monotonic() < until:
+                if still:
+                    feed.send(0, 0)  # hwbridge's 100 Hz of a still robot
+                await asyncio.sleep(0.01)
+            rested = feed.poses[count:]
+            what = "still samples" if still else "no sample"
+            assert 2 <= len(rested) <= 7, f"{len(rested)} odom/pose in 1.2 s at rest ({what})"
+            assert len({(p.x, p.y, p.theta) for p in rested}) == 1
+        count, moved = len(feed.poses), time.monotonic()
+        feed.send(5, 5)
+        await wait_for(lambda: feed.pose_after(feed.stamp) is not None)
+        assert time.monotonic() - moved < 0.2, "the first move after the rest waited for the heartbeat"
+
         # A bad reset request gets an error answer naming the field; the service stays up.
         bad_reply = await asyncio.to_thread(
             lambda: list(node.session.get(node.key(keys.ODOM_RESET), payload=b'{"x": "far"}',

@@ -76,9 +76,15 @@ class Localizer:
         self._relocalize_after = config.localizer.relocalize_after
         self._rejected_in_a_row = 0
         self.skipped_odometry = 0
+        self.changes = 0
+        """Times the estimate changed (odometry moved it, a frame updated it): the service publishes a
+        change at once, and only a heartbeat while this stays the same."""
 
     def on_odometry(self, pose: m.Pose) -> None:
-        prev, self._last_odom = self._last_odom, pose
+        prev = self._last_odom
+        if prev is not None and pose == prev:
+            return  # odometry's heartbeat with no new wheel sample: nothing new, and nothing to keep
+        self._last_odom = pose
         if prev is None:
             self._history.append((pose.stamp, pose.x, pose.y, pose.theta))
             return
@@ -99,7 +105,9 @@ class Localizer:
         while self._history[0][0] < pose.stamp - HISTORY_NS:
             self._history.popleft()
         if self.initialised:
-            self.ekf.predict(dx, dy, dth)
+            if dx or dy or dth:
+                self.ekf.predict(dx, dy, dth)
+                self.changes += 1
             self.stamp = pose.stamp
 
     def _odometry_at(self, stamp: int) -> tuple[float, float, float] | None:
@@ -169,6 +177,7 @@ class Localizer:
                     f"landmark {lid}: {result.outcome.value}; {self.ekf.unknown} unknown sightings so far")
         if not self._history:
             self.stamp = max(self.stamp, frame.stamp)
+        self.changes += 1
         return True
 
     def estimate(self) -> m.PoseEstimate:

@@ -8,6 +8,10 @@
   time (its arrival less the capture latency the calibration measured, if it did). It is the
   camera's main cost, about proportional to the frame's pixels times that rate: a robot's config
   chooses it (docs/camera.md, "What the camera costs").
+* **At rest** it searches fewer: while its picture does not change (a small grey thumbnail of
+  each frame due, compared with the still spell's first: rest.py) for ``camera.rest_after_s``,
+  only ``camera.rest_detection_rate_hz`` frames a second; the first frame that differs is
+  searched at once and ends the rest (docs/camera.md, "The camera at rest").
 * ``camera/image``: a smaller JPEG at ``camera.image_rate_hz`` (the Wi-Fi is shared
   by a class); ``camera/snapshot``: one full-resolution JPEG of the latest frame.
 * ``camera/frames``: every captured frame as the smaller JPEG, sent by the capture thread
@@ -37,7 +41,8 @@ from icefloe.worldmap import load_world
 
 from .detection import make_detector
 from .frames import Frames, camera_info
-from .sources import Retimed, SimSource, open_camera
+from .rest import DetectionRest, thumbnail
+from .sources import open_camera
 
 SNAPSHOT_QUALITY = 90
 """JPEG quality of ``camera/snapshot`` (calibration images: sharper than the stream's)."""
@@ -63,7 +68,10 @@ async def main(config: RobotConfig) -> None:
             if stream.matched:  # someone watches: ~2 ms at 320x240, no cost otherwise
                 stream.put(small.of(frame))
 
-        capture = Capture("camera", cam.source, lambda: open_camera(config, latency_s), cam.width, cam.height,
+        # the simulated camera reads the newest sim/truth at each frame it renders (one decoded a frame)
+        truth = node.latest(keys.TRUTH) if cam.source == "sim" else None
+        capture = Capture("camera", cam.source, lambda: open_camera(config, latency_s, truth.get if truth else None),
+                          cam.width, cam.height,
                           log=node.log,
                           limited=node.limited, thread_name="camera-capture", on_frame=send_while_watched)
 
@@ -85,21 +93,14 @@ async def main(config: RobotConfig) -> None:
         node.queryable(keys.FRAME, latest_small)
         node.queryable(keys.CAMERA_INFO, intrinsics)
 
-        async def feed_truth() -> None:  # only for the simulated camera
-            async for truth in node.subscribe(keys.TRUTH):
-                source = capture.source
-                if isinstance(source, Retimed):
-                    source = source.source
-                if isinstance(source, SimSource):
-                    source.set_truth(truth)
-
         capture.start()
-        truth_task = asyncio.create_task(feed_truth()) if cam.source == "sim" else None
         image_period = 1.0 / cam.image_rate_hz if cam.image_rate_hz > 0 else float("inf")
         next_image = next_detection = time.monotonic()
         detection_period = 1.0 / cam.detection_hz
         early = 0.5 / cam.fps  # a frame this early is the one due: frames come at fps, with jitter
         every_frame = cam.detection_rate_hz == 0
+        rest = DetectionRest(cam.still_threshold, cam.rest_after_s, 1.0 / cam.rest_detection_rate_hz)
+        never_rests = cam.rest_detection_rate_hz >= cam.detection_hz  # no thumbnails either
         try:
             async for frame in capture.frames("camera: %d frames captured, %d taken, %d dropped (detection behind)"):
                 now = time.monotonic()
@@ -107,14 +108,13 @@ async def main(config: RobotConfig) -> None:
                 if every_frame or now + early >= next_detection:  # else passed over: detection_rate_hz
                     # on the schedule (the rate holds on average), or from now after a stall
                     next_detection = max(next_detection + detection_period, now)
-                    found = await asyncio.to_thread(detector.detect, image)
-                    landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
+                    if never_rests or rest.search(thumbnail(image), now + early):  # else resting: still picture
+                        found = await asyncio.to_thread(detector.detect, image)
+                        landmarks.put(m.Landmarks(stamp=stamp, landmarks=found))
                 if now >= next_image:
                     next_image = now + image_period
                     images.put(await asyncio.to_thread(small.of, frame))
         finally:
-            if truth_task is not None:
-                truth_task.cancel()
             await capture.close()
 
 

@@ -8,6 +8,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -25,7 +26,10 @@ class SimSource:
     and it is stamped when it arrives, as a real camera's source stamps it: late by that latency,
     which the service takes off again if its calibration measured it."""
 
-    def __init__(self, config: RobotConfig) -> None:
+    def __init__(self, config: RobotConfig, truth: Callable[[], m.Truth | None] | None = None) -> None:
+        """``truth``: asked for the newest true pose at each frame (the service's `Latest` of
+        ``sim/truth``: one decoded per frame, not each of the simulator's 50 a second); without it,
+        the pose last handed over with `set_truth`."""
         from icefloe.sim import realism  # the simulator only where it is used
         from icefloe.sim.camera import CameraRenderer
         from icefloe.sim.sensor import Delivery
@@ -39,6 +43,7 @@ class SimSource:
         self.delivery = None if ideal else Delivery(picture, np.random.default_rng(seed + 1))
         self.pace = Paced(config.camera.fps)
         self._truth: m.Truth | None = None
+        self._newest_truth = truth
         self._lock = threading.Lock()
         self._held: deque[tuple[float, np.ndarray]] = deque()  # (arrival, monotonic s; the frame)
 
@@ -47,6 +52,8 @@ class SimSource:
             self._truth = truth
 
     def _render(self) -> tuple[m.Truth, np.ndarray]:
+        if self._newest_truth is not None and (newest := self._newest_truth()) is not None:
+            self.set_truth(newest)
         with self._lock:
             truth = self._truth
         if truth is None:
@@ -93,10 +100,11 @@ class Retimed:
         self.source.close()
 
 
-def open_camera(config: RobotConfig, latency_s: float = 0.0) -> Source:
+def open_camera(config: RobotConfig, latency_s: float = 0.0,
+                truth: Callable[[], m.Truth | None] | None = None) -> Source:
     """The source named by ``camera.source``, its stamps ``latency_s`` earlier; `SourceError` if it
-    cannot be opened now."""
+    cannot be opened now. ``truth``: the simulated camera's newest true pose (`SimSource`)."""
     cam = config.camera
     source = open_source(cam.source, cam.width, cam.height, cam.fps, setting="camera.source",
-                         sim=lambda: SimSource(config))
+                         sim=lambda: SimSource(config, truth))
     return Retimed(source, round(latency_s * 1e9)) if latency_s else source

@@ -10,7 +10,9 @@
 * Initial pose: ``localizer.init = "config"`` starts at ``initial_x/y/theta``
   with ``initial_sigma_*``; ``"landmarks"`` waits for the first frame with two
   or more known markers and solves the pose from it (`pose_from_landmarks`).
-* Publishes ``loc/pose`` after every landmark frame and at ``localizer.rate_hz``.
+* Publishes ``loc/pose`` after every landmark frame and at ``localizer.rate_hz`` while the
+  estimate changes (odometry moves it); while nothing changes it (the robot stands, the camera
+  rests), only a heartbeat at ``localizer.rest_rate_hz`` (`icefloe.heartbeat`).
 
 Run: ``python -m icefloe.services.localizer --config sim``.
 """
@@ -18,9 +20,11 @@ Run: ``python -m icefloe.services.localizer --config sim``.
 from __future__ import annotations
 
 import asyncio
+import time
 
 from icefloe.config import RobotConfig
 from icefloe.estimation.localizer import Localizer
+from icefloe.heartbeat import Heartbeat
 from icefloe.runtime import Node, run
 from icefloe.schemas import keys
 
@@ -30,8 +34,16 @@ async def main(config: RobotConfig) -> None:
         loc = Localizer(config, node.log)  # ConfigError for a bad world file: run() says so, exits
         period = 1.0 / config.localizer.rate_hz
         pub = node.publisher(keys.LOC_POSE)
+        heartbeat = Heartbeat(1.0 / config.localizer.rest_rate_hz, slack_s=period / 2)
+        published = [-1]  # loc.changes when loc/pose was last published
         node.log.info("localizer: %d landmarks from %s, init %s", len(loc.ekf.landmarks),
                       config.localizer.world, config.localizer.init)
+
+        def publish_if_due(*, frame: bool = False) -> None:
+            """``loc/pose`` after a landmark frame, or when the estimate changed or the heartbeat is due."""
+            if heartbeat.due(frame or loc.changes != published[0], time.monotonic()):
+                pub.put(loc.estimate())
+                published[0] = loc.changes
 
         async def odometry() -> None:
             async for pose in node.subscribe(keys.ODOM_POSE):
@@ -40,13 +52,13 @@ async def main(config: RobotConfig) -> None:
         async def landmarks() -> None:
             async for frame in node.subscribe(keys.LANDMARKS, latest=False, maxsize=16):
                 if loc.on_landmarks(frame):
-                    pub.put(loc.estimate())
+                    publish_if_due(frame=True)
 
         async def steady() -> None:
             while True:
                 await asyncio.sleep(period)
                 if loc.initialised and loc.stamp:  # nothing to say before the first input
-                    pub.put(loc.estimate())
+                    publish_if_due()
 
         async with asyncio.TaskGroup() as tasks:
             for job in (odometry, landmarks, steady):
