@@ -35,7 +35,7 @@ LAB_BOARD = cal.Board(5, 4, 0.08, "charuco", 0.06, "DICT_4X4_50", 40)
 def range_errors(inset: MarkerInset) -> np.ndarray:
     """Relative range errors of the lab's markers 0.5-2 m away, the robot at rest at 100 random poses, the
     detector given the true lens and ``inset``."""
-    cfg = config_mod.parse({})
+    cfg = config_mod.parse({"sim": {"profile": "ideal"}})  # the inset is measured in the ideal picture
     world = load_world("lab")
     renderer = CameraRenderer.of_robot(cfg, seed=4)
     detector = Detector(cfg.camera.dictionary, true_intrinsics(cfg), Mount.from_config(cfg.camera), world.sizes(),

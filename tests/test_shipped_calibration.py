@@ -38,7 +38,7 @@ def test_the_shipped_camera_calibration_is_what_the_calibration_finds_now(tmp_pa
 
 
 def test_the_shipped_geometry_is_what_the_wheel_calibration_finds_now() -> None:
-    """Measured: wheel_diameter 0.06381 m (the true wheels' mean 0.0640, a start's slip in it), track
+    """Measured: wheel_diameter 0.06382 m (the true wheels' mean 0.0640, a start's slip in it), track
     0.15804 m spinning at 1.59 rad/s (0.1535 / (1 - 0.02 x 1.59) = 0.1585)."""
     config = config_mod.load("sim", credentials=False)
     assert config.sim.profile == "realistic"
