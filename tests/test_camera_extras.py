@@ -59,7 +59,7 @@ def test_the_measured_inset_takes_the_range_bias_away():
     it undone are no longer long. Measured (ideal profile): inset 0.003 + 6.2 / side px (0.23 px at 27 px)
     from 194 sightings, 0.037 px about the fit; range error mean +0.58 % -> -0.05 %, p50 0.61 % -> 0.15 %,
     37 sightings (150 poses: +0.66 % -> 0.00 %, p50 0.63 % -> 0.19 %, 58 sightings)."""
-    cfg = config_mod.parse({"sim": {"world": "calibration"}})
+    cfg = config_mod.parse({"sim": {"world": "calibration", "profile": "ideal"}})  # as range_errors
     renderer = CameraRenderer.of_robot(cfg, seed=7)
     finder = cal.Finder(LAB_BOARD)
     views = [v for back in (0.0, 0.15, 0.3, 0.45) for turn in (0, 7, -7, 14, -14)
