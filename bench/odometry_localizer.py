@@ -147,6 +147,8 @@ def odometry_cpu(seconds: float, tmp: Path) -> list[tuple[str, str]]:
     config = tmp / "robot.toml"
     config.write_text(
         f'extends = "{ROOT / "deploy" / "robots" / "sim.toml"}"\nname = "bench"\nrun_dir = "{tmp}"\n\n'
+        # the drawing's wheels, as COUNTS_PER_MS assumes (the bench measures CPU, not the wheels)
+        '[geometry]\nwheel_diameter = 0.065\ntrack = 0.156\n'
         f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = ["tcp/127.0.0.1:{port}"]\n')
     log = open(tmp / "log.txt", "wb")  # noqa: SIM115 - closed below
     py = [sys.executable]

@@ -1,6 +1,8 @@
 """What the simulator's profiles do to odometry: the same open-loop tour, the same seed, in the ideal
 and the realistic profile (`icefloe.sim.realism`, docs/sim.md), odometry from the encoder counts as the
-robot's software believes its wheels ([geometry]) against the simulator's truth.
+robot's software believes its wheels ([geometry]) against the simulator's truth: the drawing's wheels
+(`Geometry`'s defaults) in both profiles, and last the shipped ``sim`` robot as it ships: realistic, its
+[geometry] a course's calibration of the realistic wheels (`icefloe.sim.wheel_calibration`).
 
     .venv/bin/python bench/sim_realism.py [--seed N] [--laps N]
 
@@ -26,8 +28,14 @@ SAMPLE_S = 0.005
 """Odometry takes the counts every 5 ms, as hwbridge's 200 Hz serial rate."""
 
 
-def tour(profile: str, seed: int, laps: int) -> dict[str, float]:
-    config = config_mod.parse({"sim": {"profile": profile, "seed": seed}})
+def tour(profile: str, seed: int, laps: int, shipped: bool = False) -> dict[str, float]:
+    """One run of the tour; ``shipped``: the ``sim`` robot's config (its calibrated [geometry]), else the
+    drawing's wheels."""
+    own = {"sim": {"profile": profile, "seed": seed}}
+    if shipped:
+        sim = config_mod.load("sim", credentials=False)
+        own["geometry"] = {"wheel_diameter": sim.geometry.wheel_diameter, "track": sim.geometry.track}
+    config = config_mod.parse(own)
     wheels = realism.wheels(config)
     world = World(config.geometry, seed=seed, slip=wheels.slip, encoder_noise=wheels.encoder_noise, wheels=wheels)
     odometry = make_odometry(config)
@@ -58,11 +66,12 @@ def main() -> None:
     parser.add_argument("--laps", type=int, default=3, help="laps of the 0.8 m square (default 3)")
     args = parser.parse_args()
     print(f"odometry against the truth, {args.laps} laps of a square, seed {args.seed}:")
-    print(f"{'profile':<10} {'path m':>7} {'final cm':>9} {'worst cm':>9} {'heading deg':>12}")
-    for profile in ("ideal", "realistic"):
-        r = tour(profile, args.seed, args.laps)
-        print(f"{profile:<10} {r['path_m']:>7.2f} {r['final_cm']:>9.2f} {r['worst_cm']:>9.2f} {r['heading_deg']:>12.2f}"
-              + ("   (reference)" if profile == "ideal" else ""))
+    print(f"{'profile':<22} {'path m':>7} {'final cm':>9} {'worst cm':>9} {'heading deg':>12}")
+    for label, profile, shipped in (("ideal", "ideal", False), ("realistic", "realistic", False),
+                                    ("realistic, calibrated", "realistic", True)):
+        r = tour(profile, args.seed, args.laps, shipped)
+        print(f"{label:<22} {r['path_m']:>7.2f} {r['final_cm']:>9.2f} {r['worst_cm']:>9.2f} "
+              f"{r['heading_deg']:>12.2f}" + ("   (reference)" if profile == "ideal" else ""))
 
 
 if __name__ == "__main__":

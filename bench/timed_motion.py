@@ -165,7 +165,10 @@ def main() -> None:
     p.add_argument("--repeat", type=int, default=3, help="runs per row; the row shows the median by error")
     args = p.parse_args()
     port = free_port()
+    # ideal, on the drawing's wheels (`K`): the subject is the motion's timing, not the wheels' sizes
+    # (docs/webapi.md's tables were measured so)
     config = robot_config(Path(tempfile.mkdtemp()), "motionbench",
+                          '[sim]\nprofile = "ideal"\n[geometry]\nwheel_diameter = 0.065\ntrack = 0.156\n'
                           f'[webapi]\nhost = "127.0.0.1"\nport = {port}\n')
     up = subprocess.Popen([sys.executable, "-m", "icefloe.cli", "up", str(config), "--no-viz",
                            "--only", "sim,hwbridge,odometry,webapi"],

@@ -625,12 +625,11 @@ class SimImage(Section):
 class Sim(Section):
     world: str = "lab"
     """The simulated world: a world name or a path, as `Localizer.world`."""
-    profile: Profile = "ideal"
+    profile: Profile = "realistic"
     """"realistic": the wheels, the lens and the pictures of a real PenguinPi, each effect a key of
-    ``[sim.wheels]``, ``[sim.lens]`` and ``[sim.image]``; "ideal": the robot is exactly what its config
-    says (``[geometry]``, the camera's own calibration), for debugging (docs/sim.md). The default is
-    still "ideal": the suite's figures are measured in it; "realistic" becomes the default once they
-    are re-measured in it (issue 36)."""
+    ``[sim.wheels]``, ``[sim.lens]`` and ``[sim.image]``, so that code tuned in the simulator works on
+    the robot; "ideal": the robot is exactly what its config says (``[geometry]``, the camera's own
+    calibration), for debugging and for tests about something other than realism (docs/sim.md)."""
     seed: Annotated[int, Meta(ge=0)] = 0
     """Random seed of every effect: slip, noise, light, latency (0 = pick one and print it)."""
     slip: Fraction | None = None

@@ -10,11 +10,13 @@ from. The capture latency is not measured: that needs the robot's own turn (`cal
 
 from __future__ import annotations
 
+import argparse
 import math
 from pathlib import Path
 
 import msgspec
 
+from icefloe import config as config_mod
 from icefloe.config import RobotConfig
 from icefloe.vision import calibration as cal
 from icefloe.vision.geometry import CameraCalibration, Intrinsics, MarkerInset, save_calibration
@@ -49,3 +51,32 @@ def calibrate_camera(config: RobotConfig, path: Path, seed: int = 1) -> str:
     truth, k = true_intrinsics(config).camera_matrix, lens.camera_matrix
     return (f"lens fx {k[0, 0]:.1f} (true {truth[0, 0]:.1f}) fy {k[1, 1]:.1f} ({truth[1, 1]:.1f}) "
             f"k1 {lens.dist_coeffs[0]:+.3f}; marker inset {inset.at(30):.3f} px at 30 px")
+
+
+SHIPPED_SEED = 1
+"""The seed the shipped ``sim`` robot's calibration file is made with (its renders' noise and light)."""
+
+
+def calibrate_realistic(robot: str, out: Path, seed: int = SHIPPED_SEED) -> str:
+    """Calibrate robot ``robot``'s camera in the realistic profile, whatever its config's profile: the
+    shipped calibration is a real PenguinPi's, and in the ideal profile the simulated lens is the one its
+    camera believes (the file's) anyway. Writes ``out``; a line of what it found."""
+    config = config_mod.load(robot, credentials=False)
+    config = msgspec.structs.replace(config, sim=msgspec.structs.replace(config.sim, profile="realistic"))
+    return calibrate_camera(config, out, seed=seed)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m icefloe.sim.camera_calibration --robot sim --out deploy/robots/sim-camera.yaml``:
+    remake the shipped robot's calibration file (tests/test_shipped_calibration.py checks it is current)."""
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("--robot", default="sim", help="the robot config (a name or a path) whose camera to calibrate")
+    parser.add_argument("--out", required=True, type=Path, help="the calibration file to write (OpenCV YAML)")
+    parser.add_argument("--seed", type=int, default=SHIPPED_SEED, help="seed of the renders' noise and light")
+    args = parser.parse_args(argv)
+    print(f"{args.out}: {calibrate_realistic(args.robot, args.out, args.seed)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

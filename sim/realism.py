@@ -3,12 +3,11 @@
 ``[sim] profile`` picks the defaults; any key of ``[sim.wheels]``, ``[sim.lens]``, ``[sim.image]``
 (or ``sim.slip``, ``sim.encoder_noise``) set in a robot config wins over its profile:
 
-* **realistic** (``[sim] profile = "realistic"``): a PenguinPi as it is, not as drawn.
+* **realistic** (``[sim] profile = "realistic"``, the default): a PenguinPi as it is, not as drawn.
   Its wheels differ from each other and from ``[geometry]``, they slip when the robot starts, stops
   and turns; its camera has a lens to calibrate, auto exposure in an unevenly lit room (so motion
   blur, and noise in the dark), JPEG artefacts, and frames that arrive late, a few not at all.
-* **ideal** (the default for now: the suite's figures are measured in it, and realistic becomes the
-  default once they are re-measured): the robot is exactly what its config says it is:
+* **ideal** (``[sim] profile = "ideal"``): the robot is exactly what its config says it is:
   ``[geometry]``'s wheels, the lens the camera service believes (its calibration file, or the
   nominal ``focal_px``), the camera's noise and flicker of before this table existed: the simulator
   as it was, for debugging, and for tests about something other than realism.

@@ -18,8 +18,11 @@ from icefloe.vision.geometry import Intrinsics, Mount
 from icefloe.worldmap import load_world
 
 
+# 320x240: the nominal lens and the ideal profile, whose lens is the camera's: the shipped calibration and
+# the realistic profile's lens are in 640x480 pixels (a calibration holds at its own resolution only)
 @pytest.mark.parametrize("camera", ["", "[camera]\nwidth = 320\nheight = 240\nfocal_px = 250.0\nimage_width = 160\n"
-                                        "image_height = 120\n"], ids=["640x480", "320x240"])
+                                        'image_height = 120\ncalibration = ""\n[sim]\nprofile = "ideal"\n'],
+                         ids=["640x480", "320x240"])
 async def test_simulated_camera_publishes_landmarks_images_and_snapshots(make_robot, camera: str) -> None:
     """At the default 640x480 and at a robot's smaller frame (the same lens: the focal length
     halved with the width), the simulated camera renders the configured size, and the same

@@ -178,13 +178,16 @@ async def test_out_of_range_arguments_name_the_robots_limit_and_move_nothing(rob
             await r.set_velocity(5, 5, duration=1)
         with pytest.raises(ValueError, match=rf"right: -0.6 m/s is beyond this robot's {limit}"):
             await r.set_velocity(0.1, -0.6)
-        with pytest.raises(ValueError, match=rf"drive: v=0.4 m/s, w=3.0 rad/s needs a wheel at 0.634 m/s, "
-                                             rf"beyond this robot's {limit}; at w=3.0 rad/s \|v\| can be "
-                                             r"0.266 m/s at most, and \|w\| is at most 6.41 rad/s"):
+        half = robot.config.geometry.track / 2  # the robot's own (sim.toml's calibrated track)
+        with pytest.raises(ValueError, match=rf"drive: v=0.4 m/s, w=3.0 rad/s needs a wheel at {0.4 + 3 * half:.3f} "
+                                             rf"m/s, beyond this robot's {limit}; at w=3.0 rad/s \|v\| can be "
+                                             rf"{0.5 - 3 * half:.3f} m/s at most, and \|w\| is at most "
+                                             rf"{0.5 / half:.2f} rad/s"):
             await r.drive(0.4, 3.0)
         with pytest.raises(ValueError, match=rf"speed: 0.8 m/s is beyond this robot's {limit}"):
             await r.forward(1.0, 0.8)
-        with pytest.raises(ValueError, match=r"speed: 7.0 rad/s needs the wheels at 0.546 m/s, .*at most 6.41"):
+        with pytest.raises(ValueError, match=rf"speed: 7.0 rad/s needs the wheels at {7 * half:.3f} m/s, "
+                                             rf".*at most {0.5 / half:.2f}"):
             await r.turn(1.0, 7.0)
         with pytest.raises(ValueError, match=r"speed: must be > 0 m/s \(the sign of distance says which way\)"):
             await r.forward(0.1, -0.1)

@@ -8,8 +8,10 @@ them with ``odom/pose``. The test only drives (``cmd/twist``) and listens.
 The localizer starts 10 cm and 5 degrees away from the true start, so an
 estimate that ends near the truth must have come from the camera: odometry alone
 would keep that offset (and add its own slip drift). Once two markers have been
-seen it must stay within 5 cm and 3 degrees of the true path (nearest truth
-within +-40 ms, as in `test_localizer_sim.py`).
+seen it must stay within 8 cm and 7 degrees of the true path (nearest truth
+within +-40 ms, as in `test_localizer_sim.py`): in the realistic profile, the default, it was measured at
+3.4-4.0 cm and 2.1-3.5 degrees at worst (2026-12-07, two runs, load 1-2; the frames 50 ms late, stamped on
+arrival). In the ideal profile the bounds were 5 cm and 3 degrees.
 
     .venv/bin/pytest -s tests/test_localizer_camera.py     # prints the figures
 """
@@ -166,7 +168,12 @@ async def test_localizer_with_the_real_camera_tracks_the_simulated_robot(make_ro
     # Rendered and detected from the same pose and stamp: a frame stamped one truth period (20 ms) off would be
     # 1.7 deg off in the turns, a wrong bearing sign tens of degrees. Ranges run ~1 % long (the detector finds
     # the corners ~0.2 px inside the black square), so the range bounds are looser.
-    assert bearing_p50 < math.radians(0.2) and bearing_max < math.radians(1.0)
+    # In the realistic profile (the default) frames arrive 50 ms (±10) after their exposure and are stamped when
+    # they arrive, as a real camera's are, uncorrected (sim.toml's calibration has no capture latency): at 1.5 rad/s
+    # in the turns that is 4-5 deg. Measured 2026-12-07 (load 2-6, two runs): bearing p50 0.10 and 0.11 deg, max
+    # 6.04-6.38 deg; range p50 0.50-0.54 %, max 5.3-6.9 %; the localizer's max error 3.36 cm 2.10 deg and
+    # 3.98 cm 3.48 deg, final 2.20 and 1.76 cm.
+    assert bearing_p50 < math.radians(0.2) and bearing_max < math.radians(12.0)
     assert range_p50 < 0.02 and range_max < 0.10
     # The localizer took the sightings: (almost) every frame on time, (almost) none gated out. A frame
     # over 1 s older than the odometry is refused as stale, rightly: only a starved machine makes one.
@@ -175,6 +182,6 @@ async def test_localizer_with_the_real_camera_tracks_the_simulated_robot(make_ro
     # once it has a fix, where odometry alone would have kept the start offset.
     assert fix - frames[0].stamp < 6_000_000_000  # the drive starts at the first frame; its first turn ends at 3.5 s
     assert len(moving) > 200
-    assert worst_pos < 0.05 and worst_heading < math.radians(3.0)
+    assert worst_pos < 0.08 and worst_heading < math.radians(7.0)  # 2 times the realistic worst (docstring)
     assert dead_pos > 0.08 and dead_heading > math.radians(3.0)
     assert final_pos < dead_pos / 2

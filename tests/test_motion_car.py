@@ -146,7 +146,7 @@ def write(tmp_path: Path, text: str) -> Path:
     ("[car]\nsteer_rate = nan", "car.steer_rate: Expected `float` > 0.0"),
     ("[car]\nfacing = \"sideways\"", "car.facing: Invalid enum value 'sideways'"),
     ("[car]\nwheel_base = 0.2", "[car]: Object contains unknown field `wheel_base`"),
-    ("[car]\nwheelbase = 0.05\nmax_steer = 1.0",
+    ("[geometry]\ntrack = 0.156\n[car]\nwheelbase = 0.05\nmax_steer = 1.0",  # the drawing's track: the figures
      "car.max_steer: 1 rad turns about a point 0.032 m from the rear axle's centre, inside the wheels (0.078 m "
      "each side): a car's inner wheel would run backwards; at most 0.570 rad for wheelbase 0.05 m"),
 ])

@@ -10,14 +10,17 @@ import sys
 import time
 from pathlib import Path
 
-from conftest import wait_for
+from conftest import SIM_CONFIG, wait_for
 
+from icefloe import config as config_mod
 from icefloe.errors import EXIT_CONFIG
 from icefloe.estimation.odometry import Geometry
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
-K = Geometry(0.065, 0.156, 384).metres_per_tick
+_SIM = config_mod.load(SIM_CONFIG).geometry
+K = Geometry(_SIM.wheel_diameter, _SIM.track, _SIM.ticks_per_rev).metres_per_tick
+"""m per count of the test robot's wheels as sim.toml believes them (its calibrated [geometry])."""
 MS = 1_000_000
 
 

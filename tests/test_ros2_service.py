@@ -30,6 +30,7 @@ from icefloe.credentials import GUEST_PASSWORD, GUEST_USER, make, read
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.ros2.convert import TWIST
+from icefloe.vision.geometry import Intrinsics
 
 CLIENT = Path(__file__).parent / "ros2_client.py"
 STATE_TOPICS = {"tf": "tf2_msgs/msg/TFMessage", "joint_states": "sensor_msgs/msg/JointState",
@@ -155,7 +156,8 @@ async def test_a_ros2_client_sees_odom_and_drives_the_simulated_robot(make_robot
                 ("jpeg", len(jpeg), "ffd8ffe0", "camera_optical_frame")
             assert info["stamp"] == image["stamp"] == list(divmod(shot.stamp, 1_000_000_000))
             assert (info["width"], info["height"], info["model"]) == (320, 240, "plumb_bob")
-            assert info["k"][0] == 250.0  # sim.toml's focal_px 500 at 640x480, for the 320x240 image
+            shipped = Intrinsics.from_config(robot.config.camera)  # sim.toml's calibration, at 640x480
+            assert info["k"][0] == pytest.approx(shipped.camera_matrix[0, 0] / 2)  # for the 320x240 image
             # map: the grid service's answer, asked again every map_period_s (a subscriber who joins late gets it)
             grid = await node.query(keys.MAP_GRID, m.GridRequest())
             world = (await client.wait("map"))[-1]

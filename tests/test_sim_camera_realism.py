@@ -20,7 +20,7 @@ from icefloe.vision.geometry import Intrinsics, Mount
 from icefloe.worldmap import load_world
 
 REALISTIC = config_mod.parse({"sim": {"profile": "realistic"}})
-IDEAL = config_mod.parse({})
+IDEAL = config_mod.parse({"sim": {"profile": "ideal"}})
 
 
 def sharpness(image: np.ndarray) -> float:

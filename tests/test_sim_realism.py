@@ -16,6 +16,7 @@ from icefloe.sim import realism
 from icefloe.sim.world import NOMINAL_VOLTAGE, World
 
 GEOM = Geometry()
+IDEAL = config_mod.parse({"sim": {"profile": "ideal"}})
 M_PER_COUNT = math.pi * GEOM.wheel_diameter / GEOM.ticks_per_rev
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "sim.md"
 
@@ -33,8 +34,8 @@ def wheels(*, noise: bool = True, **own: object) -> realism.Wheels:
 
 
 def test_the_profiles_resolve_and_an_own_key_wins():
-    ideal = realism.wheels(config_mod.parse({}))
-    assert config_mod.parse({}).sim.profile == "ideal"
+    ideal = realism.wheels(IDEAL)
+    assert config_mod.parse({}).sim.profile == "realistic"  # the default
     assert (ideal.diameter_left, ideal.diameter_right, ideal.track) == (GEOM.wheel_diameter,) * 2 + (GEOM.track,)
     assert (ideal.slip_accel, ideal.slip_turn, ideal.slip, ideal.encoder_noise) == (0.0, 0.0, 0.0, 0.0)
     real = wheels()
@@ -44,14 +45,14 @@ def test_the_profiles_resolve_and_an_own_key_wins():
     # the old keys [sim] slip and encoder_noise still win over the profile, as the tests set them
     own = realism.wheels(config_mod.parse({"sim": {"profile": "realistic", "slip": 0.0, "encoder_noise": 0.02}}))
     assert own.slip == 0.0 and own.encoder_noise == 0.02
-    assert realism.picture(config_mod.parse({})) == realism.Picture()  # ideal: the renderer as it was
+    assert realism.picture(IDEAL) == realism.Picture()  # ideal: the renderer as it was
     with pytest.raises(config_mod.ConfigError, match="profile"):
         config_mod.parse({"sim": {"profile": "kind"}})
 
 
 def test_the_ideal_profile_moves_the_robot_exactly_as_before():
     before = World(GEOM, seed=3)
-    now = World(GEOM, seed=3, wheels=realism.wheels(config_mod.parse({})))
+    now = World(GEOM, seed=3, wheels=realism.wheels(IDEAL))
     for duties in ((0.5, 0.3), (-0.4, 0.6), (0.05, 0.2), (0.0, 0.0)):
         for w in (before, now):
             w.set_duty(*duties)

@@ -12,7 +12,7 @@ import pytest
 from browser import chromium, kill_browser
 from conftest import wait_for
 from test_hwbridge_helpers import deadman_delay, sim_state
-from webapi_helpers import board, webapi, webapi_robot
+from webapi_helpers import K, board, webapi, webapi_robot
 
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
@@ -256,7 +256,7 @@ async def test_the_old_speed_and_settings_forms(robot):
         async with http.session.post(http.base + "/speed", data={"Left": "40", "Right": "-20", "Set": "Set"}) as r:
             assert r.status == 200 and "driving at 40, -20" in await r.text()
         command = await asyncio.wait_for(anext(wheels_cmd), 5)
-        assert command.left == pytest.approx(40 * 10 * 3.14159265 * 0.065 / 384, rel=1e-4)
+        assert command.left == pytest.approx(40 * K, rel=1e-4)
         async with http.session.post(http.base + "/speed", data={"Left": "400", "Right": "0", "Set": "Set"}) as r:
             assert r.status == 400 and "left speed 400 is outside -100..100" in await r.text()
         async with http.session.post(http.base + "/speed", data={"STOP": "STOP"}) as r:

@@ -7,18 +7,14 @@ from __future__ import annotations
 
 import asyncio
 import json
-import math
 import time
 
 import pytest
-from webapi_helpers import TEXT, board, wait_for, webapi, webapi_robot
+from webapi_helpers import TEXT, K, board, wait_for, webapi, webapi_robot
 
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.webapi import timing
-
-K = 10 * math.pi * 0.065 / 384
-"""m/s per firmware demand unit with the sim robot's geometry."""
 
 
 @pytest.fixture
@@ -93,7 +89,7 @@ async def test_set_velocity_holds_until_stop(robot):
         await wait_for(lambda: len(b.wheels) >= 4)
         cmd = b.wheels[-1]
         assert cmd.left == pytest.approx(50 * K) and cmd.right == pytest.approx(-20 * K)
-        assert cmd.left == pytest.approx(0.2659, abs=1e-4)  # about 5.32 mm/s per unit
+        assert cmd.left == pytest.approx(0.2611, abs=1e-4)  # about 5.22 mm/s per unit (sim.toml's 63.82 mm wheels)
         # pibot_client sends floats as "50.0"; the old server refused them, we take them.
         status, _, _ = await http.get("/robot/set/velocity", value="30.0,30.0")
         assert status == 200

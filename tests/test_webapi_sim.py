@@ -12,13 +12,10 @@ import math
 
 import pytest
 from conftest import wait_for
-from webapi_helpers import TEXT, webapi, webapi_robot
+from webapi_helpers import TEXT, K, webapi, webapi_robot
 
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
-
-K = 10 * math.pi * 0.065 / 384
-"""m/s per firmware demand unit."""
 
 
 @pytest.fixture
@@ -66,7 +63,7 @@ async def test_drive_the_simulated_robot_over_http(robot):
         after = json.loads(body)
         moved = await truth_now()
         left, right = after["encoder"]["left"], after["encoder"]["right"]
-        assert left == pytest.approx((moved.x - start.x) / (math.pi * 0.065 / 384), rel=0.1)
+        assert left == pytest.approx((moved.x - start.x) / (K / 10), rel=0.1)
         assert abs(left - right) <= 5
         assert after["pose"]["x"] == pytest.approx(moved.x - start.x, abs=0.01)
         # The answer comes when the wheels are told 0; they take a moment to stop, then stay.

@@ -24,15 +24,12 @@ import aiohttp
 import pytest
 from conftest import Proc, free_port
 from course_clients import ece4078_client
-from webapi_helpers import still, webapi, webapi_robot
+from webapi_helpers import K, still, webapi, webapi_robot
 
 from icefloe.config import ConfigError
 from icefloe.config import load as load_config
 from icefloe.errors import EXIT_CONFIG
 from icefloe.schemas import messages as m
-
-K = 10 * math.pi * 0.065 / 384
-"""m/s per firmware demand unit."""
 
 
 @pytest.mark.parametrize("value", ["[1, 0]", "[-1]", "[1, -1, 1]", '"right"', "[1.0, -1]", "[-2, 1]"])

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,13 +20,18 @@ import aiohttp
 import cv2
 import msgspec
 import numpy as np
-from conftest import Proc, Robot, free_port, wait_for
+from conftest import SIM_CONFIG, Proc, Robot, free_port, wait_for
 
+from icefloe import config as config_mod
 from icefloe.runtime import Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 
 TEXT = "text/html; charset=utf-8"
+_GEOMETRY = config_mod.load(SIM_CONFIG).geometry
+K = 10 * math.pi * _GEOMETRY.wheel_diameter / _GEOMETRY.ticks_per_rev
+"""m/s per firmware demand unit of the test robots: 10 counts/s of the wheels sim.toml believes (its
+calibrated [geometry], not the drawing's 65 mm)."""
 
 
 def webapi_robot(make_robot: Any, extra: str = "") -> Robot:
