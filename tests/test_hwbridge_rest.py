@@ -77,6 +77,16 @@ def stand(cycle: Cycle, t: int, seconds: float) -> int:
         t += cycle.period_ns
     return t
 
+def rested(shared: Shared) -> tuple[Cycle, StillBoard, int]:
+    """A cycle on a still board, its link up, stop 1 confirmed, that has stood 1.1 s: resting."""
+    cfg = config()
+    board = StillBoard(cfg)
+    cycle = Cycle(cfg, shared, board)
+    cycle.link_up = True
+    shared.write_commands(0.0, 0.0, 0, True, 0, 1)
+    return cycle, board, stand(cycle, S, 1.1)
+
+
 
 def test_rest_gate_rests_after_standing_and_wakes_on_a_command_a_turned_wheel_or_a_lost_confirmation() -> None:
     gate = RestGate(after_ns=S)
@@ -129,12 +139,7 @@ def test_a_standing_cycle_rests_and_a_stop_at_rest_is_confirmed_at_once_without_
 
 
 def test_a_motion_command_wakes_a_resting_cycle_and_drives_in_that_period(shared: Shared) -> None:
-    cfg = config()
-    board = StillBoard(cfg)
-    cycle = Cycle(cfg, shared, board)
-    cycle.link_up = True
-    shared.write_commands(0.0, 0.0, 0, True, 0, 1)
-    t = stand(cycle, S, 1.1)
+    cycle, board, t = rested(shared)
     assert cycle.rest.resting
     shared.write_commands(0.3, 0.3, t, False, 0, 1)
     assert cycle.wake(t)
@@ -149,12 +154,7 @@ def test_a_motion_command_wakes_a_resting_cycle_and_drives_in_that_period(shared
 def test_a_stop_written_after_the_command_that_woke_the_cycle_wins(shared: Shared) -> None:
     """The bus side wrote a command and kicked; a stop came before the cycle read them: the
     period it runs at once reads the stop, and the wheels stay at zero duty."""
-    cfg = config()
-    board = StillBoard(cfg)
-    cycle = Cycle(cfg, shared, board)
-    cycle.link_up = True
-    shared.write_commands(0.0, 0.0, 0, True, 0, 1)
-    t = stand(cycle, S, 1.1)
+    cycle, board, t = rested(shared)
     shared.write_commands(0.3, 0.3, t, False, 0, 1)                   # the command (kick on its way)
     shared.write_commands(0.0, 0.0, t, True, 0, 2)                    # the stop, before the cycle woke
     assert cycle.wake(t)                                              # a new command was written: a period
@@ -164,12 +164,7 @@ def test_a_stop_written_after_the_command_that_woke_the_cycle_wins(shared: Share
 
 def test_a_command_older_than_the_deadman_wakes_the_cycle_but_moves_nothing(shared: Shared) -> None:
     """Had one got past the bus side, the cycle's own deadman holds at rest as awake."""
-    cfg = config()
-    board = StillBoard(cfg)
-    cycle = Cycle(cfg, shared, board)
-    cycle.link_up = True
-    shared.write_commands(0.0, 0.0, 0, True, 0, 1)
-    t = stand(cycle, S, 1.1)
+    cycle, board, t = rested(shared)
     shared.write_commands(0.3, 0.3, t - 600 * MS, False, 0, 1)       # issued 0.6 s ago (deadman 0.5 s)
     assert cycle.wake(t)
     stand(cycle, t, 0.1)
@@ -177,12 +172,7 @@ def test_a_command_older_than_the_deadman_wakes_the_cycle_but_moves_nothing(shar
 
 
 def test_a_wheel_turned_by_hand_at_rest_wakes_the_cycle(shared: Shared) -> None:
-    cfg = config()
-    board = StillBoard(cfg)
-    cycle = Cycle(cfg, shared, board)
-    cycle.link_up = True
-    shared.write_commands(0.0, 0.0, 0, True, 0, 1)
-    t = stand(cycle, S, 1.1)
+    cycle, board, t = rested(shared)
     assert cycle.rest.resting
     board.ticks_left += 3
     cycle.step(t)
