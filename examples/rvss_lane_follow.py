@@ -2,19 +2,22 @@
 
     python examples/rvss_lane_follow.py --client ~/RVSS_Need4Speed              # until Ctrl-C
     python examples/rvss_lane_follow.py --client ~/RVSS_Need4Speed --laps 2     # two laps by the judge
-    python examples/rvss_lane_follow.py --client pibot_client.py --ip 192.168.50.5
+    python examples/rvss_lane_follow.py --client pibot_client.py --ip 192.168.50.5 --calibration camera.yaml
 
 The workshop's loop (its ``scripts/deploy.py``), with OpenCV where the team's network will go:
 ``getImage()``; a steering ``angle`` from the picture; ``setVelocity(int(Kd + Ka * angle),
 int(Kd - Ka * angle))``. The client is the team's unchanged ``pibot_client`` (examples/rvss_client.py).
 
+* The lens (`Lens`): each picture undistorted with the camera's calibration (``--calibration``, else
+  the robot's own ``/camera/info``) to the level pinhole camera the rest assumes.
 * The road (`road_mask`): the urban tiles' asphalt with its paint, the rural tiles' dirt; not the
-  grass, the pavement or the plain floor.
+  grass, the pavement or the plain floor. Dark is relative to the frame's brightness (light and
+  auto exposure move every level).
 * Its centre (`RoadBand`), in m, from the road's right edge and its known width at each row (the
   simulated camera is level, 0.1 m up); the angle is proportional to it (`LaneFollower`).
 * Speed: ``Kd`` on a straight road, less where the road ahead bends away.
 * A sharp corner (the road ahead ends at a level edge): a quarter circle onto the new road.
-* A stop sign (a red blob, `stop_sign`): its width says how far its line is; a run up to 5 cm
+* A stop sign (a red blob, `stop_sign`): its width says how far its line is; a run up to 7 cm
   before the line, a stand of ``--stop-wait`` s, then on.
 * Laps: the judge's ``judge/lap`` over the web API's bus bridge (`LapWatch`); without a judge it
   drives until Ctrl-C. The end is always ``setVelocity(0, 0)``.

@@ -313,9 +313,10 @@ async def test_the_lane_follower_drives_a_scored_lap_through_the_workshop_client
     """The example through the unchanged upstream client (getImage on /camera/get's MJPEG stream,
     setVelocity on /robot/set/velocity) drives one lap of the short loop; the judge scores it from
     the simulator's truth: a finished lap, never bogged, the stop sign obeyed (a tyre off is
-    reported, not failed: it is the follower's quality, docs/rvss.md has its figures). Measured on
-    2026-12-07 (2-core machine, load average 2 to 3), 5 runs: laps of 19.37 to 19.45 s with no
-    penalty, stood 2.8 to 4.3 cm before the line; the stack up in about 4 s, the test 23 to 24 s.
+    reported, not failed: it is the follower's quality, docs/rvss.md has its figures). On the
+    realistic default, the example undistorting with the robot's /camera/info. Measured on
+    2026-12-07 (2-core machine, load average 5.8 to 8.8), 2 runs: laps of 19.90 and 19.78 s with no
+    penalty, stood 5.1 and 4.8 cm before the line; the stack up in about 4 s, the test 27 to 28 s.
     Bounds: 90 s for the stack, 120 s for the lap."""
     client = tmp_path / "pibot_client.py"
     client.write_bytes(source(RVSS_WORKSHOP_CLIENT))
@@ -400,8 +401,9 @@ async def test_collect_saves_images_named_by_the_steering_the_keys_gave(make_rob
     """The collect example in a terminal, keys typed as a team would (arrows, then space): images
     from the unchanged client's getImage, named as collect.py names them, numbered without a gap,
     the angle in each name the one the keys had given; the robot drove and ends stopped.
-    Measured on 2026-12-07: 6 s with `every_call_of_the_client` (the stack up in about 3 s);
-    bounds of 90 s for the stack, 30 s for each wait on images."""
+    Measured on 2026-12-07: 6 s (9 s on the realistic default, load average 3.6) with
+    `every_call_of_the_client` (the stack up in about 3 s); bounds of 90 s for the stack, 30 s for
+    each wait on images."""
     from terminal import Terminal
 
     client = tmp_path / "pibot_client.py"
