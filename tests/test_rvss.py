@@ -69,9 +69,7 @@ def render_and_drive(world: str | Path, seconds: float, latency_frames: int = 5,
     g = cfg.geometry
     sx, sy, syaw = track.start
     x, y, th = sx - START_BACK * math.cos(syaw), sy - START_BACK * math.sin(syaw), syaw
-    size = (cfg.camera.image_width, cfg.camera.image_height)
-    calibration = cfg.camera.calibration
-    lens = follow.Lens.from_file(calibration, size) if calibration else None
+    lens = follow.Lens.from_file(cfg.camera.calibration) if cfg.camera.calibration else None
     driver = follow.Driver(lens=lens)
     commands = [(0, 0)] * latency_frames
     dt, t, travelled = 1 / 15, 0.0, 0.0
@@ -115,6 +113,37 @@ def test_the_follower_drives_a_clean_lap_on_rendered_frames(world: str) -> None:
     assert run["off"] == [], run
     assert len(run["stops"]) == 1 and 0.0 <= run["stops"][0] <= 0.10, run
     assert sum("sharp corner" in line for line in run["log"]) == 2, run["log"]
+
+
+def test_the_lens_makes_the_pinhole_picture_the_follower_was_tuned_on() -> None:
+    """A dot where the shipped realistic lens puts a ray (its calibration made at 640 x 480, the
+    picture 320 x 240) comes out where the tuned pinhole camera (`PINHOLE_FOCAL`, centred) puts it."""
+    lens = follow.Lens.from_file(str(ROOT / "deploy" / "robots" / "sim-camera.yaml"))
+    k = np.diag([0.5, 0.5, 1.0]) @ lens.camera_matrix
+    ray = np.array([[0.45, 0.3, 1.0]])
+    (seen,), _ = cv2.projectPoints(ray, np.zeros(3), np.zeros(3), k, lens.dist_coeffs)
+    focal = follow.PINHOLE_FOCAL * 320
+    pinhole = np.array([159.5 + focal * 0.45, 119.5 + focal * 0.3])
+    picture = np.zeros((240, 320, 3), np.uint8)
+    cv2.circle(picture, (round(seen[0][0] * 16), round(seen[0][1] * 16)), 3 * 16, (255, 255, 255), -1, shift=4)
+    assert np.hypot(*(seen[0] - pinhole)) > 5  # the lens moves it: the test means something
+    out = lens.undistort(picture)[..., 0].astype(float)
+    rows, cols = np.mgrid[0:240, 0:320]
+    centroid = np.array([(cols * out).sum(), (rows * out).sum()]) / out.sum()
+    assert np.hypot(*(centroid - pinhole)) < 1.0, (centroid, pinhole, seen)
+
+
+def test_the_road_is_found_whatever_the_exposure() -> None:
+    """Asphalt between pale pavement under a grey wall: all of it road, none of the pavement, with the
+    frame 25 % darker or 30 % brighter (auto exposure, a dim corner); a fixed level of 82 lost the
+    asphalt in the brighter one."""
+    frame = np.full((240, 320, 3), 190, np.uint8)  # the wall (in the simulator's ideal picture too)
+    frame[120:] = 210  # pavement
+    frame[120:, 100:220] = 70  # asphalt
+    for gain in (0.75, 1.0, 1.3):
+        mask = follow.road_mask(np.clip(frame * gain, 0, 255).astype(np.uint8))
+        assert (mask[190:, 110:210] == 255).all(), gain
+        assert (mask[190:, :90] == 0).all() and (mask[190:, 230:] == 0).all() and (mask[:110] == 0).all(), gain
 
 
 def test_a_sign_far_away_or_no_red_is_no_stop() -> None:
@@ -177,7 +206,9 @@ def test_bad_arguments_and_no_terminal_are_one_line(tmp_path: Path) -> None:
     client = tmp_path / "pibot_client.py"
     client.write_bytes(source(RVSS_WORKSHOP_CLIENT))
     runs = [("rvss_lane_follow.py", "--laps", "-1"), ("rvss_lane_follow.py", "--stop-wait", "0.1"),
-            ("rvss_lane_follow.py", "--slow", "1"), ("rvss_collect.py",)]
+            ("rvss_lane_follow.py", "--slow", "1"), ("rvss_collect.py",),
+            ("rvss_lane_follow.py", "--calibration", str(tmp_path / "none.yaml")),
+            ("rvss_lane_follow.py", "--calibration", str(client))]
     for script, *extra in runs:
         done = subprocess.run([sys.executable, str(ROOT / "examples" / script), "--client", str(client), *extra],
                               capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
