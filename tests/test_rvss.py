@@ -346,8 +346,8 @@ async def test_the_lane_follower_drives_a_scored_lap_through_the_workshop_client
     the simulator's truth: a finished lap, never bogged, the stop sign obeyed (a tyre off is
     reported, not failed: it is the follower's quality, docs/rvss.md has its figures). On the
     realistic default, the example undistorting with the robot's /camera/info. Measured on
-    2026-12-07 (2-core machine, load average 5.8 to 8.8), 2 runs: laps of 19.90 and 19.78 s with no
-    penalty, stood 5.1 and 4.8 cm before the line; the stack up in about 4 s, the test 27 to 28 s.
+    2026-12-07 (2-core machine, load average 4.2 to 8.8), 3 runs: laps of 19.78 to 19.90 s with no
+    penalty, stood 4.3 to 5.1 cm before the line; the stack up in about 4 s, the test 24 to 28 s.
     Bounds: 90 s for the stack, 120 s for the lap."""
     client = tmp_path / "pibot_client.py"
     client.write_bytes(source(RVSS_WORKSHOP_CLIENT))
