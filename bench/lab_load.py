@@ -147,8 +147,9 @@ def robot_flows(config: RobotConfig) -> list[Flow]:
                                              text="board link up: penguinpi")),
         ("odometry", keys.ODOM_POSE, config.odometry.rate_hz,
          m.Pose(stamp=now, x=1.23456, y=-0.56789, theta=0.78901, v=0.15, w=0.012)),
-        # The localizer publishes at its rate and after every landmark update (a frame with markers).
-        ("localizer", keys.LOC_POSE, config.localizer.rate_hz + cam.detection_hz,
+        # The localizer publishes after every landmark update (a frame with markers), and a period of
+        # its rate after the last pose: the faster of the two rates.
+        ("localizer", keys.LOC_POSE, max(config.localizer.rate_hz, cam.detection_hz),
          m.PoseEstimate(stamp=now, x=1.2301, y=-0.5702, theta=0.7911,
                         covariance=[0.0021, 0.0001, 0.0002, 0.0001, 0.0019, -0.0001, 0.0002, -0.0001, 0.0008])),
         ("camera", keys.LANDMARKS, cam.detection_hz, landmarks),

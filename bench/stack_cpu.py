@@ -216,6 +216,8 @@ def main() -> None:
                         "docs/deploy.md; 1 on a Pi 3B itself)")
     p.add_argument("--camera", action="append", default=[], metavar="KEY=VALUE",
                    help="a [camera] setting for the robot (TOML), e.g. detection_rate_hz=5.0; repeatable")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="settings",
+                   help="any setting of the robot (TOML value), e.g. hwbridge.rate_hz=250.0; repeatable")
     p.add_argument("--no-rest", action="store_true",
                    help="the camera, odometry and the localizer as before they rested (issue 35): every "
                         "frame due searched, odom/pose and loc/pose at their full rates standing too")
@@ -227,9 +229,17 @@ def main() -> None:
     if args.no_rest:  # at rest as while moving: detection at its rate, the poses at theirs
         fps = next((c.split("=", 1)[1] for c in camera if c.replace(" ", "").startswith("fps=")), "15.0")
         camera.append(f"rest_detection_rate_hz={fps}")
-    extra = f"[webapi]\nport = {free_port()}\n" + ("[camera]\n" + "\n".join(camera) + "\n" if camera else "")
+    sections: dict[str, list[str]] = {"webapi": [f"port = {free_port()}"], "camera": camera}
     if args.no_rest:
-        extra += "[odometry]\nrest_rate_hz = 50.0\n[localizer]\nrest_rate_hz = 20.0\n"
+        sections.update(odometry=["rest_rate_hz = 50.0"], localizer=["rest_rate_hz = 20.0"])
+    for setting in args.settings:
+        name, _, value = setting.partition("=")
+        section, _, key = name.strip().partition(".")
+        if not (section and key and value):
+            p.error(f"--set {setting!r}: give SECTION.KEY=VALUE, e.g. hwbridge.rate_hz=250.0")
+        sections.setdefault(section, []).append(f"{key} = {value.strip()}")
+    extra = "".join(f"[{section}]\n" + "".join(f"{line}\n" for line in lines)
+                    for section, lines in sections.items() if lines)
     if args.course:
         course = [s for s in OPTIONAL_SERVICES if s != "judge"]  # the judge needs a track world (docs/judge.md)
         extra = f"services = {list(ALL_SERVICES) + course!r}\n" + extra
@@ -268,6 +278,8 @@ def main() -> None:
     drive = "the follower driving a planned square" if args.course else "driving"
     if camera:
         print(f"[camera] {', '.join(camera)}")
+    if args.settings:
+        print(f"settings: {', '.join(args.settings)}")
     if args.no_rest:
         print("--no-rest: odometry.rest_rate_hz = 50, localizer.rest_rate_hz = 20 (their rate_hz)")
     print(f"CPU over {args.seconds:.0f} s standing, then {args.seconds:.0f} s {drive}, % of one core "

@@ -117,8 +117,10 @@ class Hwbridge(Section):
     """Real-time cycle rate. The PenguinPi link cannot hold 1 kHz at 115200 baud; see docs."""
     serial_rate_hz: Hz = 200.0
     """PenguinPi: exchange rate on the serial link (MULTI_SET_VEL_GET_ENC)."""
-    wheels_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 100.0
-    """Rate of ``hw/wheels`` on the bus (0 = every cycle)."""
+    wheels_rate_hz: Annotated[float, Meta(ge=0, le=10_000)] = 50.0
+    """Rate of ``hw/wheels`` on the bus, Hz (0 = every cycle). 50, odometry's own rate: each
+    sample carries cumulative counts, so a slower stream loses no motion, and at 100 Hz every
+    sample cost hwbridge, the router and odometry again while driving (issue 35, docs/deploy.md)."""
     deadman_s: Seconds = 0.5
     """Wheels stop when no command arrived for this long."""
     max_wheel_speed: Positive = 0.5
@@ -390,8 +392,10 @@ class Localizer(Section):
     world: str = "lab"
     """Landmark map: a world name (``lab``: ``deploy/worlds/lab.toml`` or your own, see `icefloe.paths`) or a path."""
     rate_hz: Hz = 20.0
-    """Steady rate of ``loc/pose`` while the estimate changes (odometry moved), Hz (it is also
-    published after every landmark frame)."""
+    """Steady rate of ``loc/pose`` while the estimate changes (odometry moved), Hz: it is published
+    after every landmark frame, and at each tick of this rate that no frame's pose went out
+    before (so while the camera finds markers at 15 Hz, about 20 poses a second, not 15 + 20).
+    The newest ``odom/pose`` is read at these times, not followed at its own rate."""
     rest_rate_hz: Hz = 4.0
     """Rate of ``loc/pose`` while neither odometry nor the landmarks changed the estimate, Hz: a
     heartbeat (`icefloe.heartbeat`). 4 Hz is a pose every 0.25 s, twice within the follower's

@@ -389,7 +389,7 @@ class Latest(Generic[T]):
     """The newest message of one key, read when you ask for it (`get`).
 
     For a state stream that a slow loop only looks at now and then (the little screen's wheel
-    speeds, at 100 Hz, shown five times a second): Zenoh keeps the newest sample in a ring of
+    speeds, at 50 Hz, shown five times a second): Zenoh keeps the newest sample in a ring of
     one, and no Python runs per sample; `get` decodes only a sample that is new."""
 
     def __init__(self, node: Node, key_expr: str, decode: Callable[[bytes, str, str], T]) -> None:

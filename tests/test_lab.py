@@ -134,10 +134,11 @@ def test_router_load_measures_a_lab_router_with_two_stand_in_robots(tmp_path: Pa
 
     from icefloe import config as config_mod
 
-    flows = lab_load.robot_flows(config_mod.load(None))
+    config = config_mod.load(None)
+    flows = lab_load.robot_flows(config)
     row = lab_load.measure(2, 2.0, flows, workers=1, root=tmp_path)
     assert row.sessions == 2 * (len(lab_load.ROBOT_SIDE) + 1) + 2
-    assert row.probes > 100, row                     # the probe's hw/wheels came through, 100 Hz
+    assert row.probes > config.hwbridge.wheels_rate_hz, row  # the probe's hw/wheels came through: half of 2 s of them
     assert row.delivered >= 0.95, row                # a robot's traffic reached its watcher
     assert row.router_cpu > 0 and row.router_rss_mb > 0, row
 

@@ -161,8 +161,8 @@ async def test_low_battery_inverts_the_display_and_services_are_listed(make_robo
 
 
 async def test_fast_streams_are_followed_only_while_a_screen_shows_them(make_robot: Any) -> None:
-    """At rest the screen costs nothing: oled subscribes to hw/wheels (100 Hz) and odom/pose
-    (50 Hz) only while a screen shows them (Zenoh's matching status says whether anyone
+    """At rest the screen costs nothing: oled subscribes to hw/wheels and odom/pose
+    (50 Hz each) only while a screen shows them (Zenoh's matching status says whether anyone
     listens), shows what comes after it looks again, never what it saw before, and a student
     flipping screens a few hundred times leaves it as it was."""
     robot: Robot = make_robot('[display]\nkind = "none"\n')

@@ -9,7 +9,7 @@ and the configured sink (`sinks`).
 
 A screen that has not changed costs (almost) nothing (bench/stack_cpu.py measures it): one
 loop wakes at ``display.rate_hz`` and does everything; the commands wait in Zenoh until then
-(no thread waits for them); the fast streams (``hw/wheels`` at 100 Hz, ``odom/pose`` at
+(no thread waits for them); the fast streams (``hw/wheels`` and ``odom/pose`` at
 50 Hz) are followed only while a screen shows them; the liveliness tokens are asked for only
 while the services screen is shown; a frame is rendered only when what it shows changed.
 """

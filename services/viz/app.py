@@ -66,7 +66,7 @@ class Stream:
 
 
 STREAMS = (
-    Stream(keys.WHEELS, RobotLogger.wheels, rate_hz=20),  # 100 Hz on the bus
+    Stream(keys.WHEELS, RobotLogger.wheels, rate_hz=20),  # 50 Hz on the bus
     Stream(keys.ODOM_POSE, RobotLogger.odom, rate_hz=20),
     Stream(keys.LOC_POSE, RobotLogger.loc, rate_hz=20),
     Stream(keys.EXTLOC_POSE, RobotLogger.extloc, rate_hz=20),  # the lab's overhead camera (docs/extloc.md)

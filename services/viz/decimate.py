@@ -1,6 +1,6 @@
 """Thin out a high-rate stream before it reaches the viewer.
 
-hwbridge publishes ``hw/wheels`` at 100 Hz; a plot on a laptop screen gains
+hwbridge publishes ``hw/wheels`` at 50 Hz; a plot on a laptop screen gains
 nothing from more than about 20 points a second, and every logged point costs
 the viewer memory. `Decimator` keeps a message only when at least one period
 has passed (by the message's own ``stamp``) since the last one it kept.
