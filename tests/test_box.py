@@ -652,7 +652,9 @@ def _loop(box: Box) -> dict:
 
 def _hogs_running(box: Box) -> bool:
     """Every busy loop and the spinner's eight threads (and its main one) started."""
-    r = box.run("echo $(pgrep -u pi -c -f busy.sh) $(ps -o nlwp= -p $(pgrep -u pi -f spin.py) || echo 0) $(nproc)",
+    # (anchored: the login shell that started them names both files too)
+    r = box.run("echo $(pgrep -u pi -c -f '^sh .*busy[.]sh') "
+                "$(ps -o nlwp= -p \"$(pgrep -u pi -f '^python3 .*spin[.]py')\" || echo 0) $(nproc)",
                 check=False).stdout.split()
     return len(r) == 3 and r[0] == r[2] and int(r[1]) >= 9
 
