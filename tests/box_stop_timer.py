@@ -14,7 +14,7 @@ the kernel, so the board outside it and this client read the same clock), s:
 * ``received``: when the datagram that zeroed both wheels' demand reached the board (the board's
   record: `deploy/box/box.py`'s ``received``): the robot's part of a stop;
 * ``zero_duty``: since when both duties are zero (the PenguinPi firmware applies a demand at its
-  next 20 ms control step).
+  next 20 ms control step: the receipt plus the firmware's wait for it).
 
 The robot drives forwards and backwards in turn, so that it stays where it started.
 """
@@ -50,10 +50,12 @@ def board(box_socket: str, request: str) -> str:
         return s.makefile().readline().strip()
 
 
-def received_since(box_socket: str, put: float) -> float:
-    """When the last stop reached the board, if after ``put``; else 0."""
-    r = board(box_socket, "received")
-    return float(r) if r != "none" and float(r) >= put else 0.0
+def stopped_since(box_socket: str, put: float) -> tuple[float, float] | None:
+    """When the last stop reached the board and when the duty became zero, once both are, after ``put``."""
+    r = board(box_socket, "received").split()
+    if len(r) != 2 or r[1] == "moving" or float(r[0]) < put:
+        return None
+    return float(r[0]), float(r[1])
 
 
 async def until(what: str, condition, every: float = 0.005):  # type: ignore[no-untyped-def]
@@ -81,8 +83,8 @@ async def main(box_socket: str, robot_name: str, credentials: str, count: int) -
             seen.clear()
             put = time.monotonic()
             await robot.stop(confirm=False)
-            received = await until("the board's receipt of the stop", lambda put=put: received_since(box_socket, put))
-            zero = await until("zero duty", lambda: (z := board(box_socket, "stopped")) != "moving" and float(z))
+            received, zero = await until("the board's receipt of the stop and zero duty",
+                                         lambda put=put: stopped_since(box_socket, put))
             await until("the observer's copy of the stop", lambda: seen)
             print(json.dumps({"put": put, "router": seen[0], "received": received, "zero_duty": zero}), flush=True)
 

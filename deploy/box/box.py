@@ -4,7 +4,7 @@
                                   (in a memory limit the size of a Raspberry Pi 3B's: --memory MIB)
     deploy/box.sh exec [--user pi] -- CMD...   run a command in the box
     deploy/box.sh board pose|unplug|plug|stopped|received   the board outside the box (pose: the
-                                  simulator's truth; received: when the last stop reached it)
+                                  simulator's truth; received: when the last stop reached it, and its zero duty)
     deploy/box.sh reboot | down               reboot the box | power it off and throw it away
 
 The root (`build`) is made once with debootstrap from Debian's packages and kept in a cache outside
@@ -380,11 +380,18 @@ class Board:
         return f"{now - (world.time - since):.6f}"  # the simulator's clock runs at the real rate
 
     def received(self) -> str:
-        """When the last stop reached the board (the datagram that zeroed both wheels' demand: the
-        firmware applies it at its next 20 ms control step), on this machine's ``time.monotonic()``
-        clock, or ``none``: a stop's way to the board is the robot's part of its latency."""
-        since = self.sim.board.model.stop_received
-        return f"{since:.6f}" if since >= 0 else "none"
+        """When the last stop reached the board (the datagram that zeroed both wheels' demand), on this
+        machine's ``time.monotonic()`` clock, and when the duty became zero on the same clock (the
+        firmware applies a demand at its next 20 ms control step: that wait, taken on the simulator's
+        clock, added to the receipt), or ``moving``; ``none`` before any stop. A stop's way to the board
+        is the robot's part of its latency."""
+        model, world = self.sim.board.model, self.sim.world
+        received, received_sim, zero_since = model.stop_received, model.stop_received_sim, world.zero_duty_since
+        if received < 0:
+            return "none"
+        if zero_since < received_sim:
+            return f"{received:.6f} moving"
+        return f"{received:.6f} {received + zero_since - received_sim:.6f}"
 
     def close(self) -> None:
         self.sim.close()
@@ -823,7 +830,8 @@ def main(argv: list[str] | None = None) -> int:
     bd.add_argument("action", choices=["pose", "unplug", "plug", "stopped", "received"],
                     help="pose: the simulator's truth (x y theta, m, rad); unplug/plug the serial line; "
                          "stopped: since when both wheels' duty is zero (this machine's monotonic clock, s) or "
-                         "'moving'; received: when the last stop reached the board (the same clock) or 'none'")
+                         "'moving'; received: when the last stop reached the board and when its duty became "
+                         "zero (the same clock; 'moving' until it is) or 'none'")
     sub.add_parser("reboot", help="reboot the box (systemctl reboot inside) and wait until it is up")
     sub.add_parser("down", help="power the box off and throw its copy away")
     sub.add_parser("serve", help=argparse.SUPPRESS)
