@@ -41,9 +41,12 @@ requests.
 
 from __future__ import annotations
 
+import array
 import contextlib
+import fcntl
 import os
 import select
+import termios
 import time
 from collections import deque
 
@@ -154,6 +157,8 @@ class PenguinPiBoard(Board):
         self._ser: serial.Serial | None = None
         self._fd = -1
         """The port's file descriptor (non-blocking): the cycle reads and writes it directly."""
+        self._waiting = array.array("i", [0])
+        """FIONREAD's answer: the bytes the line discipline holds (made once: the cycle makes nothing)."""
         self._parser = ppi.Parser()
         # the request in flight, and the kinds we gave up on (see "Matching replies")
         self._inflight: Kind | None = None
@@ -248,9 +253,16 @@ class PenguinPiBoard(Board):
 
         ``os.read`` on the port's descriptor, not pyserial's ``read``: pyserial asks ``select``
         first and builds a timeout object, three times the cost of the read itself, every period.
-        With VMIN = VTIME = 0 a port with nothing to read returns b""; one whose device has gone
-        (a pseudo-terminal whose far end closed) fails, and the link is lost."""
+        Only when FIONREAD says the line discipline holds bytes: a read that finds none waits, even
+        on a non-blocking port, for the kernel's worker that moves bytes just received into the line
+        discipline (Linux's ``n_tty_read`` flushes that work first), and the worker runs at normal
+        priority: a student's busy loops delayed the real-time cycle behind it by up to 7 ms (traced
+        in the box, docs/deploy.md). Bytes the worker has not moved yet are read next period. A port
+        whose device has gone (a pseudo-terminal whose far end closed) fails, and the link is lost."""
         try:
+            fcntl.ioctl(self._fd, termios.FIONREAD, self._waiting, True)
+            if not self._waiting[0]:
+                return b""
             return os.read(self._fd, 4096)
         except BlockingIOError:
             return b""
