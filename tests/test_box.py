@@ -716,7 +716,7 @@ def test_6_a_students_cpu_hogs_starve_neither_the_cycle_nor_a_stop(box: Box) -> 
     over that window stay under `OVERRUNS`. cyclictest at the cycle's priority, on its CPU, in the same
     window, says what the machine itself allowed: where even it missed the goal (a loaded virtual
     machine), the cycle is compared with it. Measured: docs/deploy.md, "The students cannot starve the
-    robot" (about 25 s alone, 30 s beside a suite)."""
+    robot" (10 to 12 s alone, 11 to 21 s beside a stand-in for the suite)."""
     if not shutil.which("cyclictest"):
         pytest.fail("needs cyclictest, the machine's own latency at the cycle's priority (apt-get install rt-tests)")
     box.run(f"printf %s {shlex.quote(BUSY)} > ~/busy.sh && printf %s {shlex.quote(SPIN)} > ~/spin.py", user="pi")
