@@ -76,6 +76,14 @@ class PenguinPiFirmware:
         self.errors = 0
         self.last_datagram: w.Frame | None = None
         """Last datagram with a good CRC (the OLED's DATAGRAM screen)."""
+        self.stop_received = -1.0
+        """Link time (s, the link's clock: this machine's monotonic one) at which the last datagram
+        arrived that set both wheels' demand to zero while either was driven: a stop's receipt, which
+        a test times a stop to (the duty follows at the next control step), or -1 before any."""
+        self.stop_received_sim = -1.0
+        """The simulated time (``world.time``, s) of that receipt: the duty's zero follows it by the
+        firmware's wait for its next control step, on the simulator's clock (which a loaded machine
+        delays behind the link's, so the two clocks are not compared)."""
         self.text_sent: deque[str] = deque(maxlen=200)
         """Text lines the board sent (``ERR: ...``, ``DBG: ...``), newest last."""
         self.daemon_alive = False
@@ -181,7 +189,10 @@ class PenguinPiFirmware:
             return
         frame = w.Frame(dg[1], dg[2], bytes(dg[3:length - 1]))
         self.last_datagram = frame
+        driven = self.demands != (0, 0)
         if dispatch(self, frame, length):
+            if driven and self.demands == (0, 0):
+                self.stop_received, self.stop_received_sim = self._last_rx, self.world.time
             self.pulse_led("blue", 2)
             self.packets_in = (self.packets_in + 1) & 0xFFFF
 

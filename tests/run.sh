@@ -33,6 +33,7 @@ ensure_apt /usr/include/msgpack.hpp libmsgpack-dev libmsgpack-cxx-dev
 # the robot in a box (tests/test_box.py, docs/box.md): Debian's root maker and systemd's container tool
 ensure_apt debootstrap debootstrap
 ensure_apt systemd-nspawn systemd-container
+ensure_apt cyclictest rt-tests   # the machine's own latency beside the box's CPU hogs (test_box.py)
 echo "== ruff"
 .venv/bin/ruff check .
 # The robot in a box (tests/test_box.py, docs/box.md) runs beside the rest of the suite, from the

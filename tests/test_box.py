@@ -20,7 +20,9 @@ import hashlib
 import json
 import os
 import re
+import shlex
 import shutil
+import signal
 import subprocess
 import time
 import urllib.error
@@ -621,6 +623,148 @@ def test_6_doctor_is_clean_and_names_each_injected_fault(box: Box) -> None:
     finally:
         box.board("plug")
     assert _doctor_until(box, expected)[1] == [], "the board plugged in again"
+
+
+STOP_TIMER = ROOT / "tests" / "box_stop_timer.py"
+"""Drives and stops from outside, timing each stop to the board (its docstring says what it prints)."""
+STOPS = 5
+STOP_TO_BOARD_S = 0.020
+"""Issue 35: a ``cmd/stop`` reaches the board within this while a student's programs hog every CPU (the
+PenguinPi firmware then applies it at its next 20 ms control step: to the board is the robot's part)."""
+OVERRUNS = 0.01
+"""Issue 35: the 1 kHz cycle misses at most this share of its deadlines while the CPUs are hogged."""
+PERIOD_US = 1000
+"""The cycle's period, µs (1 kHz)."""
+WORK_US = 100
+"""The cycle's own work in a period, µs (69-81 µs of CPU, docs/hwbridge.md, "CPU per period"): a
+cyclictest wake-up this much before the next deadline ends in time, as the cycle's would."""
+BUSY = "while :; do :; done\n"
+SPIN = ("import threading\n\ndef spin():\n    while True:\n        pass\n\n"
+        "for _ in range(8):\n    threading.Thread(target=spin).start()\n")
+HOGS = "for i in $(seq $(nproc)); do sh ~/busy.sh & done; python3 ~/spin.py & wait"
+"""A student's CPU hogs, as pi: one shell busy loop per CPU, and a Python process spinning eight threads."""
+
+
+def _loop(box: Box) -> dict:
+    r = subprocess.run([str(ICEFLOE), "echo", "hw/loop", "--once", "--robot", ROBOT, *_owner(box)],
+                       capture_output=True, text=True, timeout=60 * SLOW, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout.splitlines()[0])
+
+
+def _hogs_running(box: Box) -> bool:
+    """Every busy loop and the spinner's eight threads (and its main one) started."""
+    # (anchored: the login shell that started them names both files too)
+    r = box.run("echo $(pgrep -u pi -c -f '^sh .*busy[.]sh') "
+                "$(ps -o nlwp= -p \"$(pgrep -u pi -f '^python3 .*spin[.]py')\" || echo 0) $(nproc)",
+                check=False).stdout.split()
+    return len(r) == 3 and r[0] == r[2] and int(r[1]) >= 9
+
+
+def _cycle_at_the_pis_priority(box: Box) -> str:
+    """hwbridge's cycle raised, from outside, to the SCHED_FIFO priority it raises itself to on a Pi (80),
+    where the box withheld it; what it ran at before. The box cannot grant it: the unit's LimitRTPRIO=95
+    needs its systemd to raise a hard limit, and this machine's root lacks CAP_SYS_RESOURCE (nspawn
+    cannot pass it on); then the cycle stays at the unit's 40, with the bus side's every thread at 40
+    on the same CPU, which a Pi's cycle preempts. Root here may set a priority (CAP_SYS_NICE)."""
+    leader = json.loads((box.dir / "box.json").read_text())["leader"]
+    pid = subprocess.run(["pgrep", "--ns", str(leader), "-f", "services[.]hwbridge[.]rt"], capture_output=True,
+                         text=True).stdout.split()[0]
+    was = os.sched_getparam(int(pid)).sched_priority
+    if was < 80:
+        os.sched_setscheduler(int(pid), os.SCHED_FIFO, os.sched_param(80))
+    return f"SCHED_FIFO {was}"
+
+
+def _cyclictest(cpu: int) -> subprocess.Popen[str]:
+    """cyclictest as the cycle runs on a Pi: SCHED_FIFO 80 (`[hwbridge] priority`), every `PERIOD_US` on
+    an absolute clock, on the cycle's CPU, memory locked; each wake-up's latency (µs) on a line."""
+    return subprocess.Popen(["cyclictest", "--mlockall", "--quiet", "--priority=80", f"--affinity={cpu}",
+                             f"--interval={PERIOD_US}", "--verbose"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+
+def machine_overruns(latencies: list[int]) -> int:
+    """The deadlines a cycle of `WORK_US` would have missed had it woken when cyclictest did, counted as
+    the cycle counts its own (services/hwbridge/rt.py: a period ending after the next deadline misses
+    every deadline up to its end, and those are skipped, not caught up)."""
+    missed_total, skip_until = 0, 0
+    for i, latency in enumerate(latencies):
+        deadline = i * PERIOD_US
+        if deadline < skip_until:
+            continue  # the cycle skipped this deadline: cyclictest's catching up is not a wake-up of its
+        late = deadline + latency + WORK_US - (deadline + PERIOD_US)
+        if late > 0:
+            missed = late // PERIOD_US + 1
+            missed_total += missed
+            skip_until = deadline + PERIOD_US * (missed + 1)
+    return missed_total
+
+
+def _machine(cyclictest: subprocess.Popen[str]) -> tuple[int, int, int]:
+    """cyclictest stopped: `machine_overruns` of its wake-ups, their number, the largest latency (µs)."""
+    cyclictest.send_signal(signal.SIGINT)
+    out = cyclictest.communicate(timeout=30)[0]
+    latencies = [int(m.group(1)) for m in re.finditer(r"^\s*\d+:\s*\d+:\s*(\d+)$", out, re.MULTILINE)]
+    assert latencies, f"cyclictest measured nothing: {out[-500:]}"
+    return machine_overruns(latencies), len(latencies), max(latencies)
+
+
+def test_6_a_students_cpu_hogs_starve_neither_the_cycle_nor_a_stop(box: Box) -> None:
+    """As pi, one busy loop per CPU and a process spinning eight threads; meanwhile, from outside, `STOPS`
+    stops, each after a drive. Each stop reaches the board within `STOP_TO_BOARD_S`; the cycle's overruns
+    over that window stay under `OVERRUNS`. cyclictest at the cycle's priority, on its CPU, in the same
+    window, says what the machine itself allowed: where even it missed the goal (a loaded virtual
+    machine), the cycle is compared with it. Measured: docs/deploy.md, "The students cannot starve the
+    robot" (10 to 12 s alone, 11 to 21 s beside a stand-in for the suite)."""
+    if not shutil.which("cyclictest"):
+        pytest.fail("needs cyclictest, the machine's own latency at the cycle's priority (apt-get install rt-tests)")
+    box.run(f"printf %s {shlex.quote(BUSY)} > ~/busy.sh && printf %s {shlex.quote(SPIN)} > ~/spin.py", user="pi")
+    hogs = subprocess.Popen([str(BOX), "--dir", str(box.dir), "--name", "icefloe-test", "--arch", ARCH, "exec",
+                             "--user", "pi", "--", HOGS], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    machine = None
+    try:
+        wait_for("the hogs running", lambda: _hogs_running(box), 30, 0.5)
+        withheld = _cycle_at_the_pis_priority(box)
+        load = os.getloadavg()[0]
+        machine = _cyclictest((os.cpu_count() or 1) - 1)
+        before = _loop(box)
+        timer = subprocess.run(["nice", "-n", "-10", str(ROOT / ".venv/bin/python"), str(STOP_TIMER),
+                                str(box.dir / "box.sock"), ROBOT, str(box.credentials), str(STOPS)],
+                               capture_output=True, text=True, timeout=120 * SLOW, cwd=ROOT)
+        after = _loop(box)
+        machine_missed, machine_cycles, machine_most = _machine(machine)
+    finally:
+        if machine is not None and machine.poll() is None:
+            machine.kill()
+        box.run("pkill -KILL -u pi || true")
+        hogs.kill()
+        hogs.wait()
+    assert timer.returncode == 0, timer.stdout + timer.stderr
+    stops = [json.loads(line) for line in timer.stdout.splitlines()]
+    to_board = [(s["received"] - s["put"]) * 1000 for s in stops]
+    to_duty = [(s["zero_duty"] - s["put"]) * 1000 for s in stops]
+    to_router = [(s["router"] - s["put"]) * 1000 for s in stops]
+    cycles = after["cycles"] - before["cycles"]
+    overruns = (after["overruns"] - before["overruns"]) / max(1, cycles)
+    machine_share = machine_missed / machine_cycles
+    print(f"the cycle at SCHED_FIFO 80 (the box's: {withheld}); "
+          f"hogged (load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end): "
+          f"a stop to the board {', '.join(f'{ms:.1f}' for ms in to_board)} ms; to zero duty "
+          f"{', '.join(f'{ms:.1f}' for ms in to_duty)} ms; through the router "
+          f"{', '.join(f'{ms:.1f}' for ms in to_router)} ms; the cycle's overruns {overruns:.3%} of {cycles} cycles; "
+          f"cyclictest (SCHED_FIFO 80) as the cycle would count: {machine_share:.3%} of {machine_cycles}, "
+          f"its wake-ups at most {machine_most} µs late")
+    assert len(stops) == STOPS, timer.stdout
+    assert max(to_board) <= STOP_TO_BOARD_S * 1000, to_board
+    # The goal, unless this machine itself missed it at the cycle's priority in the same window (beside
+    # a test suite, a virtual machine's CPUs stall for milliseconds): then the cycle may miss what the
+    # machine missed, and no more than the goal's share on top (its own part), and the line says so.
+    allowed = OVERRUNS if machine_share <= OVERRUNS else machine_share + OVERRUNS
+    if allowed > OVERRUNS:
+        print(f"the machine itself missed {machine_share:.3%} at SCHED_FIFO 80: the cycle is held to "
+              f"{allowed:.3%}, the machine's and the goal's {OVERRUNS:.0%} on top")
+    assert overruns <= allowed, f"the cycle missed {overruns:.3%}, the machine {machine_share:.3%}"
 
 
 HOG = "python3 -c 'chunks = []\nwhile True: chunks.append(b\"x\" * (16 << 20))'; echo \"hog exited $?\""

@@ -6,11 +6,14 @@ board's end byte by byte. The cycle (`rt.Cycle`) runs on real shared memory.
 
 from __future__ import annotations
 
+import array
 import asyncio
 import contextlib
+import fcntl
 import logging
 import os
 import select
+import termios
 import threading
 import time
 import tty
@@ -56,7 +59,16 @@ class BoardEnd:
             select.select([self.master], [], [], 0.05)
 
     def write(self, data: bytes) -> None:
+        """Send ``data`` to the backend, and wait (up to 5 s) until its line discipline holds it: the
+        backend reads only the bytes the kernel has handed over (FIONREAD), as a real cycle then
+        reads them a period later."""
+        waiting = array.array("i", [0])
+        fcntl.ioctl(self._slave, termios.FIONREAD, waiting, True)
+        expected, deadline = waiting[0] + len(data), time.monotonic() + 5.0
         os.write(self.master, data)
+        while waiting[0] < expected and time.monotonic() < deadline:
+            time.sleep(0.001)
+            fcntl.ioctl(self._slave, termios.FIONREAD, waiting, True)
 
     def close(self) -> None:
         os.close(self.master)

@@ -101,6 +101,25 @@ def test_multi_set_is_right_then_left_and_get_is_left_then_right(bench: Bench) -
     assert right == w.unpack_int16(bench.get(A.AD_MOTOR_R, M.MOTOR_GET_ENC))
 
 
+
+def test_a_stops_receipt_is_the_link_time_of_the_datagram_that_zeroed_both_demands(bench: Bench) -> None:
+    """What a test times a stop to (tests/test_box.py): the arrival of the datagram that took the wheels
+    from driven to both zero; a zero demand to standing wheels, or one wheel zeroed, is no stop."""
+    assert bench.fw.stop_received == -1.0
+    bench.request(A.AD_MULTI, MU.MULTI_SET_VEL, w.pack_multi_set(0, 0))  # standing: no stop
+    assert bench.fw.stop_received == -1.0
+    bench.request(A.AD_MULTI, MU.MULTI_SET_VEL, w.pack_multi_set(30, 30))
+    bench.request(A.AD_MOTOR_L, M.MOTOR_SET_VEL, w.pack_int16(0))  # one wheel still driven
+    assert bench.fw.stop_received == -1.0
+    bench.request(A.AD_MULTI, MU.MULTI_SET_VEL_GET_ENC, w.pack_multi_set(0, 0))
+    assert bench.fw.stop_received == bench.link_time
+    received = bench.link_time
+    bench.request(A.AD_MULTI, MU.MULTI_ALL_STOP)  # stopped already: the first receipt stays
+    assert bench.fw.stop_received == received
+    bench.request(A.AD_MULTI, MU.MULTI_SET_VEL, w.pack_multi_set(-20, 10))
+    bench.request(A.AD_MULTI, MU.MULTI_ALL_STOP)
+    assert bench.fw.stop_received == bench.link_time > received
+
 def test_gains_defaults_and_set(bench: Bench) -> None:
     assert w.unpack_int16(bench.get(A.AD_MOTOR_L, M.MOTOR_GET_KVP)) == 0
     assert w.unpack_int16(bench.get(A.AD_MOTOR_L, M.MOTOR_GET_KVI)) == 1

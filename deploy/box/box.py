@@ -3,7 +3,8 @@
     deploy/box.sh [up]            build the root once (cached), boot a fresh copy, install penguin1 as pi
                                   (in a memory limit the size of a Raspberry Pi 3B's: --memory MIB)
     deploy/box.sh exec [--user pi] -- CMD...   run a command in the box
-    deploy/box.sh board pose|unplug|plug|stopped   the board outside the box (pose: the simulator's truth)
+    deploy/box.sh board pose|unplug|plug|stopped|received   the board outside the box (pose: the
+                                  simulator's truth; received: when the last stop reached it, and its zero duty)
     deploy/box.sh reboot | down               reboot the box | power it off and throw it away
 
 The root (`build`) is made once with debootstrap from Debian's packages and kept in a cache outside
@@ -378,6 +379,20 @@ class Board:
             return "moving"
         return f"{now - (world.time - since):.6f}"  # the simulator's clock runs at the real rate
 
+    def received(self) -> str:
+        """When the last stop reached the board (the datagram that zeroed both wheels' demand), on this
+        machine's ``time.monotonic()`` clock, and when the duty became zero on the same clock (the
+        firmware applies a demand at its next 20 ms control step: that wait, taken on the simulator's
+        clock, added to the receipt), or ``moving``; ``none`` before any stop. A stop's way to the board
+        is the robot's part of its latency."""
+        model, world = self.sim.board.model, self.sim.world
+        received, received_sim, zero_since = model.stop_received, model.stop_received_sim, world.zero_duty_since
+        if received < 0:
+            return "none"
+        if zero_since < received_sim:
+            return f"{received:.6f} moving"
+        return f"{received:.6f} {received + zero_since - received_sim:.6f}"
+
     def close(self) -> None:
         self.sim.close()
 
@@ -551,7 +566,8 @@ class Supervisor:
 
     def handle(self, words: list[str]) -> str:
         """``pose`` (x y theta, m and rad: the simulator's truth), ``unplug``, ``plug``, ``stopped``
-        (since when both wheels' duty is zero), ``stop`` (the box)."""
+        (since when both wheels' duty is zero), ``received`` (when the last stop reached the board),
+        ``stop`` (the box)."""
         match words:
             case ["pose"]:
                 return self.board.pose()
@@ -562,10 +578,12 @@ class Supervisor:
                 return "plugged " + self.board.plug(self.state.read()["leader"])
             case ["stopped"]:
                 return self.board.stopped()
+            case ["received"]:
+                return self.board.received()
             case ["stop"]:
                 self.stop()
                 return "stopping"
-        return f"error unknown request {' '.join(words)!r}: pose, unplug, plug, stopped, stop"
+        return f"error unknown request {' '.join(words)!r}: pose, unplug, plug, stopped, received, stop"
 
 
 # ---------------------------------------------------------------------------------------- commands
@@ -809,10 +827,11 @@ def main(argv: list[str] | None = None) -> int:
     ex.add_argument("--user", default="root", help="as this user, in a login shell (default root)")
     ex.add_argument("cmd", nargs=argparse.REMAINDER, help="the command (after --)")
     bd = sub.add_parser("board", help="the board outside the box")
-    bd.add_argument("action", choices=["pose", "unplug", "plug", "stopped"],
+    bd.add_argument("action", choices=["pose", "unplug", "plug", "stopped", "received"],
                     help="pose: the simulator's truth (x y theta, m, rad); unplug/plug the serial line; "
                          "stopped: since when both wheels' duty is zero (this machine's monotonic clock, s) or "
-                         "'moving'")
+                         "'moving'; received: when the last stop reached the board and when its duty became "
+                         "zero (the same clock; 'moving' until it is) or 'none'")
     sub.add_parser("reboot", help="reboot the box (systemctl reboot inside) and wait until it is up")
     sub.add_parser("down", help="power the box off and throw its copy away")
     sub.add_parser("serve", help=argparse.SUPPRESS)

@@ -41,9 +41,11 @@ requests.
 
 from __future__ import annotations
 
+import array
 import contextlib
+import fcntl
 import os
-import select
+import termios
 import time
 from collections import deque
 
@@ -154,6 +156,8 @@ class PenguinPiBoard(Board):
         self._ser: serial.Serial | None = None
         self._fd = -1
         """The port's file descriptor (non-blocking): the cycle reads and writes it directly."""
+        self._waiting = array.array("i", [0])
+        """FIONREAD's answer: the bytes the line discipline holds (made once: the cycle makes nothing)."""
         self._parser = ppi.Parser()
         # the request in flight, and the kinds we gave up on (see "Matching replies")
         self._inflight: Kind | None = None
@@ -248,9 +252,16 @@ class PenguinPiBoard(Board):
 
         ``os.read`` on the port's descriptor, not pyserial's ``read``: pyserial asks ``select``
         first and builds a timeout object, three times the cost of the read itself, every period.
-        With VMIN = VTIME = 0 a port with nothing to read returns b""; one whose device has gone
-        (a pseudo-terminal whose far end closed) fails, and the link is lost."""
+        Only when FIONREAD says the line discipline holds bytes: a read that finds none waits, even
+        on a non-blocking port, for the kernel's worker that moves bytes just received into the line
+        discipline (Linux's ``n_tty_read`` flushes that work first), and the worker runs at normal
+        priority: a student's busy loops delayed the real-time cycle behind it by up to 7 ms (traced
+        in the box, docs/deploy.md). Bytes the worker has not moved yet are read next period. A port
+        whose device has gone (a pseudo-terminal whose far end closed) fails, and the link is lost."""
         try:
+            fcntl.ioctl(self._fd, termios.FIONREAD, self._waiting, True)
+            if not self._waiting[0]:
+                return b""
             return os.read(self._fd, 4096)
         except BlockingIOError:
             return b""
@@ -258,17 +269,13 @@ class PenguinPiBoard(Board):
             raise BoardError(f"{self.port_name}: read failed (link lost?): {exc}") from None
 
     def _check_connected(self, now_ns: int) -> None:
-        """Raise `BoardError` if the port says it has bytes to read and then reads none: its
-        device is gone (a USB adapter pulled out). Asked only when a request timed out; pyserial
-        asked at every read. Bytes that did come meanwhile are taken as any others."""
-        try:
-            ready = select.select([self._fd], [], [], 0)[0]
-        except (OSError, ValueError) as exc:
-            raise BoardError(f"{self.port_name}: {exc} (link lost?)") from None
-        if ready:
-            data = self._read()
-            if not data:
-                raise BoardError(f"{self.port_name}: the device reports data and gives none (disconnected?)")
+        """Raise `BoardError` if the port's device is gone (a USB adapter pulled out, a pseudo-terminal
+        whose far end closed): FIONREAD then fails. Asked only when a request timed out; pyserial
+        asked at every read. Not by ``select``: it waits for the kernel's worker as a read does
+        (`_read`; traced: 154 ms beside a student's busy loops). Bytes that did come meanwhile are
+        taken as any others."""
+        data = self._read()
+        if data:
             self._heard_ns = now_ns
             self._receive(data, now_ns)
 
