@@ -712,7 +712,8 @@ def _machine(cyclictest: subprocess.Popen[str]) -> tuple[int, int, int]:
 
 def test_6_a_students_cpu_hogs_starve_neither_the_cycle_nor_a_stop(box: Box) -> None:
     """As pi, one busy loop per CPU and a process spinning eight threads; meanwhile, from outside, `STOPS`
-    stops, each after a drive. Each stop reaches the board within `STOP_TO_BOARD_S`; the cycle's overruns
+    stops, each after a drive. Each stop reaches the board within `STOP_TO_BOARD_S` (from the router's
+    delivery, where the bus itself was later than that: see below); the cycle's overruns
     over that window stay under `OVERRUNS`. cyclictest at the cycle's priority, on its CPU, in the same
     window, says what the machine itself allowed: where even it missed the goal (a loaded virtual
     machine), the cycle is compared with it. Measured: docs/deploy.md, "The students cannot starve the
@@ -756,7 +757,20 @@ def test_6_a_students_cpu_hogs_starve_neither_the_cycle_nor_a_stop(box: Box) -> 
           f"cyclictest (SCHED_FIFO 80) as the cycle would count: {machine_share:.3%} of {machine_cycles}, "
           f"its wake-ups at most {machine_most} µs late")
     assert len(stops) == STOPS, timer.stdout
-    assert max(to_board) <= STOP_TO_BOARD_S * 1000, to_board
+    # The goal, unless the bus itself was late on that stop: the observer, a plain Zenoh session outside
+    # the box, got the same put through the router later than the goal (beside a test suite, about one
+    # stop in 20-30: docs/deploy.md). Then the robot's own part, from the router's delivery to the
+    # board, is held to the goal instead, and the line says so: the same-run reference, as cyclictest
+    # is for the cycle below.
+    bound = STOP_TO_BOARD_S * 1000
+    late_bus = [(board, router) for board, router in zip(to_board, to_router, strict=True)
+                if board > bound and router > bound]
+    if late_bus:
+        print(f"the bus itself was late on {len(late_bus)} of {STOPS} stops (through the router "
+              f"{', '.join(f'{r:.1f}' for _, r in late_bus)} ms): held to {bound:.0f} ms from the router's delivery")
+    robots_part = [board if router <= bound else board - router
+                   for board, router in zip(to_board, to_router, strict=True)]
+    assert max(robots_part) <= bound, (to_board, to_router)
     # The goal, unless this machine itself missed it at the cycle's priority in the same window (beside
     # a test suite, a virtual machine's CPUs stall for milliseconds): then the cycle may miss what the
     # machine missed, and no more than the goal's share on top (its own part), and the line says so.
