@@ -9,6 +9,7 @@ simulator's GPIO lines (``sim/gpio``), each in this process on a real Zenoh sess
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import sys
 import time
@@ -18,10 +19,12 @@ from typing import Any
 import numpy as np
 from conftest import Robot, wait_for
 
+from icefloe.errors import BadPayload
 from icefloe.runtime import MSGPACK, Node
 from icefloe.schemas import keys
 from icefloe.schemas import messages as m
 from icefloe.services.power.battery import READ_PERIOD_S
+from icefloe.services.power.shutdown import HALT_RETRY_S
 
 
 def screen(frame: m.OledFrame) -> np.ndarray:
@@ -47,8 +50,10 @@ def power_toml(marker: Path, **power: object) -> str:
 class FakeBridge:
     """Plays hwbridge and the simulator's lines; records what the power service says, in order."""
 
-    def __init__(self, node: Node, *, halt_delay: float | None = 0.3) -> None:
+    def __init__(self, node: Node, *, halt_delay: float | None = 0.3, refusals: int = 0) -> None:
         self.node = node
+        self.refusals = refusals
+        """Refuse this many halts first, as hwbridge does when a newer motion released the stop."""
         self.events: list[tuple[str, int, Any]] = []
         """(what, time ns, message): the notice and the ack line at their sender's stamp, the halt
         query when it arrived here and when it was answered. Same machine, same clock."""
@@ -83,6 +88,11 @@ class FakeBridge:
         """Like hwbridge: stop the wheels, answer once they have stopped (here: after a delay)."""
         self.events.append(("halt asked", time.time_ns(), request))
         await asyncio.sleep(self._halt_delay)
+        if self.refusals:
+            self.refusals -= 1
+            self.events.append(("halt refused", time.time_ns(), None))
+            raise BadPayload("cmd/halt: a motion command issued after the stop released it before "
+                             "the board confirmed it")
         self.events.append(("halt answered", time.time_ns(), None))
         return m.Wheels(stamp=time.time_ns(), ticks_left=0, ticks_right=0, speed_left=0.0,
                         speed_right=0.0)
@@ -98,6 +108,18 @@ class FakeBridge:
         self._hw.put(m.BatteryReading(stamp=stamp, voltage=volts, current=0.4))
         await wait_for(lambda: any(b.stamp == stamp for b in self.battery), timeout=15)
         return next(b for b in self.battery if b.stamp == stamp)
+
+    async def reading_after_a_flood(self, volts: float) -> m.Battery:
+        """`reading`, published again each second until power answers one: Zenoh drops what a
+        flood leaves no room for in its queues (puts are best effort), this reading too."""
+        stamps: list[int] = []
+        for _ in range(15):
+            stamps.append(time.time_ns())
+            self._hw.put(m.BatteryReading(stamp=stamps[-1], voltage=volts, current=0.4))
+            with contextlib.suppress(AssertionError):
+                await wait_for(lambda: any(b.stamp in stamps for b in self.battery), timeout=1)
+                break
+        return next(b for b in self.battery if b.stamp in stamps)
 
     async def until_ready(self) -> None:
         """Wait until power listens: it drives the acknowledge line high once its lines are set up."""
@@ -277,6 +299,38 @@ async def test_bus_request_without_hwbridge_times_out_and_still_powers_off(make_
         tester.close()
 
 
+async def test_a_halt_refused_while_a_program_drives_is_asked_again(make_robot: Any,
+                                                                    tmp_path: Path) -> None:
+    """hwbridge refuses a halt whose stop a newer motion command released (a program still
+    driving as the shutdown begins): power asks again while ``halt_timeout_s`` lasts, and powers
+    off after hwbridge confirms; refused to the end, it powers off anyway and says why."""
+    for refusals, confirmed in ((2, True), (1000, False)):
+        marker = tmp_path / f"poweroff-{refusals}"
+        robot: Robot = make_robot(power_toml(marker, halt_timeout_s=2.0))
+        async with robot.node() as node:
+            tester = FakeBridge(node, halt_delay=0.05, refusals=refusals)
+            power = robot.start("power")
+            await tester.until_ready()
+            await node.query(keys.SHUTDOWN_REQUEST, m.ShutdownRequest(reason="lab closes"), timeout=15)
+            await wait_for(marker.exists, timeout=15)
+            what = tester.what()
+            asked = what.count("halt asked")
+            if confirmed:
+                assert what == ["ack=1", "notice"] + ["halt asked", "halt refused"] * 2 + [
+                    "halt asked", "halt answered", "ack=0"], what
+            else:  # for 2 s, a pause after each: not one query after another as fast as they come
+                assert 5 <= asked <= 2.0 / HALT_RETRY_S + 1 and what[-1] == "ack=0", what
+                assert any(lg.level == "error" and "no wheel-stop confirmation" in lg.text
+                           for lg in tester.logs)
+            said = [lg.text for lg in tester.logs]
+            assert any("hwbridge confirmed the wheels stopped" in t for t in said) == confirmed, said
+            assert sum("cmd/halt refused" in t for t in said) <= 3 * 2, said  # three a second
+            print(f"{refusals} refusals: {asked} halts asked, "
+                  f"{'confirmed' if confirmed else 'not confirmed'}")
+            assert power.stop() == 0
+            tester.close()
+
+
 async def test_bad_battery_readings_are_logged_and_ignored(make_robot: Any,
                                                                  tmp_path: Path) -> None:
     robot: Robot = make_robot(power_toml(tmp_path / "poweroff"))
@@ -309,7 +363,7 @@ async def test_a_flood_of_readings_costs_a_bounded_batch(make_robot: Any, tmp_pa
         flood = node.publisher(keys.HW_BATTERY)
         for i in range(5000):
             flood.put(m.BatteryReading(stamp=i + 1, voltage=7.4 if i % 7 else 99.0, current=0.1))
-        assert (await tester.reading(7.3)).state == "ok"
+        assert (await tester.reading_after_a_flood(7.3)).state == "ok"
         wall = time.monotonic() - t0
         assert len(tester.battery) <= wall / READ_PERIOD_S + 3  # once a batch, not once a reading
         await wait_for(lambda: any("outside 0..30 V" in lg.text for lg in tester.logs), timeout=15)

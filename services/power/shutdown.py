@@ -4,7 +4,8 @@
    learns why the robot is going away;
 2. query ``cmd/halt`` and wait for hwbridge's answer that the wheels have
    stopped (no answer within ``halt_timeout_s`` -> log an error and go on: a
-   dead bridge must not keep a robot with a flat battery running);
+   dead bridge must not keep a robot with a flat battery running); a refusal
+   (a program drove again after the stop) -> ask again while that time lasts;
 3. drop the acknowledge line (GPIO11) low: the PenguinPi firmware shows
    "TURN RaspberryPI OFF SAFELY" and stops its timers; wait ``ack_delay_s``;
 4. run ``power.poweroff_command`` (``true`` in the simulator and tests).
@@ -25,6 +26,8 @@ from .gpio import Lines
 
 STOPPED_SPEED = 0.01
 """Wheel rim speeds below this count as stopped, m/s."""
+HALT_RETRY_S = 0.1
+"""After hwbridge refuses a halt, ask again this much later, s."""
 
 
 class Shutdown:
@@ -53,16 +56,7 @@ class Shutdown:
 
     async def _finish(self) -> None:
         log, power = self._node.log, self._power
-        try:
-            wheels = await self._node.query(keys.HALT, m.Halt(), timeout=power.halt_timeout_s)
-            speeds = (wheels.speed_left, wheels.speed_right)
-            if max(abs(v) for v in speeds) < STOPPED_SPEED:
-                log.info("hwbridge confirmed the wheels stopped")
-            else:  # hwbridge answers after its own timeout even if they still turn
-                log.error("hwbridge answered but the wheels still turn (%.3f, %.3f m/s); "
-                          "powering off anyway", *speeds)
-        except (NotReachable, BadPayload) as exc:
-            log.error("no wheel-stop confirmation (%s); powering off anyway", exc)
+        await self._halt()
         self._lines.drive(power.ack_line, 0)
         await asyncio.sleep(power.ack_delay_s)
         command = power.poweroff_command
@@ -76,6 +70,36 @@ class Shutdown:
             if code != 0:
                 log.error("power.poweroff_command %s exited with %d", command, code)
         self.done.set()
+
+    async def _halt(self) -> None:
+        """Ask hwbridge to stop the wheels, again while it refuses and ``halt_timeout_s`` lasts.
+
+        hwbridge refuses a halt when a motion command issued after it released the stop before
+        the board confirmed it: a program still driving as the shutdown begins. Each new halt
+        is a new stop, so once that program stops (or its commands stop coming) one holds."""
+        log, loop = self._node.log, asyncio.get_running_loop()
+        deadline = loop.time() + self._power.halt_timeout_s
+        while True:
+            try:
+                wheels = await self._node.query(keys.HALT, m.Halt(),
+                                                timeout=max(deadline - loop.time(), HALT_RETRY_S))
+            except BadPayload as exc:  # an error reply: refused, or the board did not confirm
+                if loop.time() + HALT_RETRY_S < deadline:
+                    self._node.limited.warning("cmd/halt", "cmd/halt refused (%s); asking again", exc)
+                    await asyncio.sleep(HALT_RETRY_S)
+                    continue
+                log.error("no wheel-stop confirmation (%s); powering off anyway", exc)
+                return
+            except NotReachable as exc:
+                log.error("no wheel-stop confirmation (%s); powering off anyway", exc)
+                return
+            speeds = (wheels.speed_left, wheels.speed_right)
+            if max(abs(v) for v in speeds) < STOPPED_SPEED:
+                log.info("hwbridge confirmed the wheels stopped")
+            else:  # hwbridge answers after its own timeout even if they still turn
+                log.error("hwbridge answered but the wheels still turn (%.3f, %.3f m/s); "
+                          "powering off anyway", *speeds)
+            return
 
     async def request(self, request: m.ShutdownRequest) -> m.ShutdownNotice:
         """The ``power/request`` queryable: answer with the notice once it is published."""
