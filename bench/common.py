@@ -111,7 +111,10 @@ PI3B_SLOWER = 6.4
 """How many times longer a Raspberry Pi 3B's core (Cortex-A53, 1.2 GHz) takes than one of the build
 machine's for the same single-threaded work: CPython 3.11's float loop of alexdedyura/cpu-benchmark,
 published for a Pi 3B+ and scaled by clock (1.4 / 1.2), against the same loop here
-(bench/pi_conversion.py; docs/deploy.md, "How much of a Pi 3B the robot leaves to students")."""
+(bench/pi_conversion.py; docs/deploy.md, "How much of a Pi 3B the robot leaves to students").
+Measured on a busy machine: on a quiet one the same loop gives about twice this, which is why
+bench/stack_cpu.py measures its own factor beside each window and uses this one only to place
+`PI3B_RANGE` around it."""
 PI3B_RANGE = (5.0, 9.4)
 """The range of `PI3B_SLOWER`: sysbench's C (detection is OpenCV's C++, the cycle mostly system
 calls) to Salwan's simplebench primes (Python 2.7 on the Pi). docs/deploy.md."""

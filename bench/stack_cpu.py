@@ -31,6 +31,13 @@ workloads run here: bench/pi_conversion.py), and checked against the goals of is
 (`PI3B_GOALS`: at most 1 Pi 3B core driving with detection on, 0.5 standing). Over a goal at the
 middle factor, the script exits 1 saying so. On a Pi itself, ``--pi3b-slower 1``: a Pi's own
 measurement wins over any conversion.
+
+The factor is each window's own (`Reference`): the float loop that `PI3B_SLOWER` comes from
+(bench/pi_conversion.py) runs in bursts during the window, a tenth of a core, and the published
+Pi 3B+ time (scaled to a 3B) over the time here is that window's factor; its range moves with it.
+This virtual machine's core is not as fast from one minute to the next, and a service's % of a core
+moves with it: the reference measured beside it takes that out of the conversion.
+``--pi3b-slower`` fixes the factor instead.
 """
 
 from __future__ import annotations
@@ -44,10 +51,12 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 from common import PI3B_GOALS, PI3B_RANGE, PI3B_SLOWER, cpu_seconds, free_port, robot_config, robot_processes
+from pi_conversion import FLOAT_LOOP, FLOAT_LOOP_ROUNDS, PI3B_CLOCK_SCALE, PUBLISHED
 
 from icefloe.config import ALL_SERVICES, OPTIONAL_SERVICES
 
@@ -204,6 +213,53 @@ def renderer_share(config: Path, frames: int = 40) -> float:
     return 100 * per_frame * cfg.camera.fps
 
 
+PI3B_FLOAT_LOOP_S = PUBLISHED["float loop"][0][1] * PI3B_CLOCK_SCALE
+"""The float loop's attempt on a Pi 3B core, s: the Pi 3B+'s published 245 s scaled by clock."""
+REFERENCE_ROUNDS = 20
+"""Rounds of the float loop in one burst of the same-run reference: about 40 ms of CPU here."""
+REFERENCE_DUTY = 0.1
+"""The reference's share of one core while a window runs."""
+
+
+class Reference(threading.Thread):
+    """The same-run reference: while a window runs, bursts of the float loop that `PI3B_SLOWER`
+    was worked out from (bench/pi_conversion.py), a tenth of a core, each timed in CPU time of this
+    thread. `attempt_s` is then what one published attempt (10 000 rounds) costs this machine
+    during that window.
+
+    Why during: this virtual machine's core is not as fast from one minute to the next (the same
+    attempt took 17 to 33 s of CPU within one run on a quiet machine, and 40 to 51 s on a busy one),
+    and a service's % of a core moves with it; a factor taken at another time converts the window
+    with the wrong speed."""
+
+    def __init__(self) -> None:
+        super().__init__(name="pi3b reference", daemon=True)
+        self._code = compile(FLOAT_LOOP, "<float loop>", "exec")
+        self._done = threading.Event()
+        self.cpu_s = 0.0
+        self.rounds = 0
+
+    def run(self) -> None:
+        while not self._done.is_set():
+            start = time.thread_time()
+            exec(self._code, {"__name__": "__workload__", "ROUNDS": REFERENCE_ROUNDS})  # our own text
+            used = time.thread_time() - start
+            self.cpu_s, self.rounds = self.cpu_s + used, self.rounds + REFERENCE_ROUNDS
+            self._done.wait(used * (1 / REFERENCE_DUTY - 1))
+
+    def __enter__(self) -> Reference:
+        self.start()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self._done.set()
+        self.join()
+
+    @property
+    def attempt_s(self) -> float:
+        return self.cpu_s / max(self.rounds, 1) * FLOAT_LOOP_ROUNDS
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=20.0, help="length of each window, s")
@@ -211,9 +267,10 @@ def main() -> None:
     p.add_argument("--course", action="store_true",
                    help="run the course's reference services too (grid, planner, follower, mapper, slam), "
                         "each with its budget; the follower drives a planned square")
-    p.add_argument("--pi3b-slower", type=float, default=PI3B_SLOWER,
-                   help=f"times slower a Pi 3B core is than this machine's (default {PI3B_SLOWER:g}, "
-                        "docs/deploy.md; 1 on a Pi 3B itself)")
+    p.add_argument("--pi3b-slower", type=float, default=None,
+                   help="times slower a Pi 3B core is than this machine's (default: this run's own "
+                        "measure, the float loop of bench/pi_conversion.py timed around the windows; "
+                        f"{PI3B_SLOWER:g} in docs/deploy.md; 1 on a Pi 3B itself)")
     p.add_argument("--camera", action="append", default=[], metavar="KEY=VALUE",
                    help="a [camera] setting for the robot (TOML), e.g. detection_rate_hz=5.0; repeatable")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="settings",
@@ -257,14 +314,17 @@ def main() -> None:
         if args.course:
             asyncio.run(planner_ready(config, timeout=120.0))
             time.sleep(2.0)  # the readiness query's own work is behind us
-        standing = window(procs, args.seconds)
+        with Reference() as standing_ref:
+            standing = window(procs, args.seconds)
         if args.course:
-            driving = asyncio.run(follow_square(config, procs, args.seconds))
+            with Reference() as driving_ref:
+                driving = asyncio.run(follow_square(config, procs, args.seconds))
         else:
             driver = subprocess.Popen([*icefloe, "pub", "cmd/twist", '{"v": 0.15, "w": 0.5}', "--rate", "10",
                                        "--config", str(config)], stdout=subprocess.DEVNULL)
             time.sleep(3.0)
-            driving = window(procs, args.seconds)
+            with Reference() as driving_ref:
+                driving = window(procs, args.seconds)
         render = renderer_share(config)
     finally:
         if driver is not None:
@@ -299,18 +359,28 @@ def main() -> None:
                     breaches.append(f"{name} {phase} {used:.1f} % > {limit} %")
         limits = f"{budget[0]:g} / {budget[1]:g}" if budget else "-"
         print(f"  {name:<22} {standing[name]:8.1f}% {driving[name]:8.1f}%   {limits}{marks}")
-    factor = args.pi3b_slower
-    low, high = (factor, factor) if factor != PI3B_SLOWER else PI3B_RANGE
+    factors = {"standing": PI3B_FLOAT_LOOP_S / standing_ref.attempt_s,
+               "driving": PI3B_FLOAT_LOOP_S / driving_ref.attempt_s}
+    print(f"this run's reference (the float loop of bench/pi_conversion.py, a tenth of a core during each "
+          f"window): an attempt took {standing_ref.attempt_s:.1f} s of CPU standing, {driving_ref.attempt_s:.1f} s "
+          f"driving; a Pi 3B {PI3B_FLOAT_LOOP_S:.0f} s")
     for label, usage_ in (("standing", standing), ("driving", driving)):
         robot = sum(v for n, v in usage_.items() if n not in SIM)
         course = sum(v for n, v in usage_.items() if n in COURSE_BUDGETS)
         of_which = f" (of which the course's reference services {course:.1f} %)" if args.course else ""
         print(f"robot side {label} (everything but the simulator and its renderer): {robot:.1f} % of one core"
               + of_which)
+        if args.pi3b_slower is None:  # this window's own; the range moves with it
+            factor = factors[label]
+            low, high = (bound * factor / PI3B_SLOWER for bound in PI3B_RANGE)
+            why = f"this window's reference; {PI3B_SLOWER:g}x in docs/deploy.md, a busy machine's"
+        else:
+            factor = low = high = args.pi3b_slower
+            why = "--pi3b-slower"
         cores, goal = robot / 100 * factor, PI3B_GOALS[label]
         verdict = "OVER" if cores > goal else "within"
         print(f"  = {cores:.2f} Pi 3B cores ({robot / 100 * low:.2f} to {robot / 100 * high:.2f}; "
-              f"a Pi 3B core {factor:g}x slower than this machine's); goal <= {goal:g}: {verdict}")
+              f"a Pi 3B core {factor:.2f}x slower than this machine's: {why}); goal <= {goal:g}: {verdict}")
         if cores > goal:
             breaches.append(f"robot side {label} {cores:.2f} Pi 3B cores > {goal:g}")
     print(f"simulator with its camera renderer, driving: {sum(driving.get(n, 0.0) for n in SIM):.1f} % "
