@@ -310,14 +310,19 @@ async def test_from_rest_a_command_drives_at_once_and_a_stop_is_confirmed_at_zer
                 stop.put(m.Stop())                                    # a stop from rest
                 stops.append(await until(lambda n=number: state()["stop_confirmed"] > n))
                 assert state()["duty_left"] == state()["duty_right"] == 0.0
-            # Hostile: a flood of tiny commands at rest, then a stop: the stop wins.
+            # Hostile: a flood of tiny commands at rest, then a stop: the stop wins. With the
+            # ordering fields, as the client sends them: the urgent stop may overtake the flood's
+            # last commands on the way (Zenoh's queue per priority), and without them those would
+            # release it (docs/hwbridge.md, "Without the fields").
             await wait_for(shared.rest, 10.0)
-            for _ in range(2000):
-                wheels.put(m.WheelSpeeds(left=1e-4, right=1e-4))
+            for seq in range(1, 2001):
+                wheels.put(m.WheelSpeeds(left=1e-4, right=1e-4, sender="flood", seq=seq, stamp=time.time_ns()))
             await wait_for(lambda: shared.rest() == 0, 10.0)             # awake for them
             number = state()["stop_confirmed"]
-            stop.put(m.Stop())
+            stop.put(m.Stop(sender="flood", seq=2001, stamp=time.time_ns()))
             await until(lambda n=number: state()["stop_confirmed"] > n and state()["duty_left"] == 0.0)
+            await asyncio.sleep(0.3)  # what of the flood still comes, after the stop, drives nothing
+            assert state()["duty_left"] == state()["duty_right"] == 0.0
         finally:
             shared.close()
         print(f"command from rest -> duty: {[round(c * 1e3, 1) for c in commands]} ms; "
