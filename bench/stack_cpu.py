@@ -269,7 +269,7 @@ def main() -> None:
                         "each with its budget; the follower drives a planned square")
     p.add_argument("--pi3b-slower", type=float, default=None,
                    help="times slower a Pi 3B core is than this machine's (default: this run's own "
-                        "measure, the float loop of bench/pi_conversion.py timed around the windows; "
+                        "measure, the float loop of bench/pi_conversion.py run during each window; "
                         f"{PI3B_SLOWER:g} in docs/deploy.md; 1 on a Pi 3B itself)")
     p.add_argument("--camera", action="append", default=[], metavar="KEY=VALUE",
                    help="a [camera] setting for the robot (TOML), e.g. detection_rate_hz=5.0; repeatable")

@@ -83,14 +83,13 @@ class Shutdown:
             try:
                 wheels = await self._node.query(keys.HALT, m.Halt(),
                                                 timeout=max(deadline - loop.time(), HALT_RETRY_S))
-            except BadPayload as exc:  # an error reply: refused, or the board did not confirm
-                if loop.time() + HALT_RETRY_S < deadline:
+            except (BadPayload, NotReachable) as exc:
+                # BadPayload is an error reply (refused, or the board did not confirm): ask again
+                # while time lasts. NotReachable: no answer within all of it.
+                if isinstance(exc, BadPayload) and loop.time() + HALT_RETRY_S < deadline:
                     self._node.limited.warning("cmd/halt", "cmd/halt refused (%s); asking again", exc)
                     await asyncio.sleep(HALT_RETRY_S)
                     continue
-                log.error("no wheel-stop confirmation (%s); powering off anyway", exc)
-                return
-            except NotReachable as exc:
                 log.error("no wheel-stop confirmation (%s); powering off anyway", exc)
                 return
             speeds = (wheels.speed_left, wheels.speed_right)
