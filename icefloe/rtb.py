@@ -236,8 +236,9 @@ class Car(Bicycle):
 
 async def drive_car(car: Car, robot, duration: float) -> np.ndarray:
     """Drive ``robot`` (an `icefloe.client.AsyncRobot`) with ``car``'s control for ``duration`` s: each
-    ``car.dt`` s (by the wall clock, as hwbridge's steering and deadman run) one toolbox step, its
-    (v, steer) sent as ``cmd/car`` and integrated by the model; then the robot is stopped (confirmed),
+    ``car.dt`` s from the first one sent (by the wall clock, as hwbridge's steering and deadman run;
+    the toolbox's first step is slow) one toolbox step, its (v, steer) sent as ``cmd/car`` and
+    integrated by the model; then the robot is stopped (confirmed),
     also when this is cancelled or fails (a control that gives NaN: `ValueError` naming ``v`` or
     ``steer``). A ``cmd/stop`` from another program (a teacher's stop, ``icefloe pub cmd/stop``) ends
     the drive: `MotionStopped`, and nothing more is sent. Returns the model's prediction,
@@ -250,7 +251,7 @@ async def drive_car(car: Car, robot, duration: float) -> np.ndarray:
     listener = robot.node.on_samples(robot.node.key(keys.STOP), lambda _sample: stopped.set(),
                                      allowed_origin=zenoh.Locality.REMOTE)
     car.init(animate=False)
-    start = time.monotonic()
+    start = 0.0
     try:
         async with robot.car(0.0, 0.0):
             for i in range(round(duration / car.dt)):
@@ -259,6 +260,8 @@ async def drive_car(car: Car, robot, duration: float) -> np.ndarray:
                     raise MotionStopped(f"rtb.drive_car: ended by a cmd/stop from another program after {i} of "
                                         f"{round(duration / car.dt)} steps")
                 await robot.drive_car(float(car.u[0]), float(car.u[1]))
+                if i == 0:  # the schedule starts with the first step sent, not before the first (slower) one
+                    start = time.monotonic()
                 await asyncio.sleep(max(0.0, start + (i + 1) * car.dt - time.monotonic()))
     finally:
         listener.undeclare()

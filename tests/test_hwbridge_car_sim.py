@@ -95,6 +95,16 @@ async def after_stop(node: Node) -> None:
     assert (await sim_state(node)).peak_duty == 0.0, "the wheels were driven after the stop"
 
 
+async def zero_duty(node: Node, timeout: float = 3.0) -> m.SimState:
+    """Until the simulated board drives zero duty on both wheels (within ``timeout`` s): a stop sent
+    by a program that does not wait for its confirmation (teleop) has reached the board."""
+    deadline = time.monotonic() + timeout
+    while (state := await sim_state(node)).zero_duty_since < 0:
+        assert time.monotonic() < deadline, f"the board still drives {timeout} s later: {state}"
+        await asyncio.sleep(0.01)
+    return state
+
+
 async def settle(node: Node, states: asyncio.Queue, steer: float) -> None:
     """Until ``car/state`` shows the steering at ``steer``, then `SETTLE_S` of simulated time."""
     seen: list[m.CarState] = []

@@ -166,7 +166,7 @@ async def test_teleop_drives_the_car_on_its_circle_and_every_way_out_stops_it(ma
     within 3 % over 2.5 rad of turn (measured 2026-12-07: -0.35, -0.22, -0.12, +0.73 % at load 1;
     +0.31, -0.19 % beside six CPU hogs; the call takes 8-10 s). The steering keys at speed 0 send
     nothing; space, ``m`` (back to the unicycle keys) and Ctrl-C each stop the wheels."""
-    from test_hwbridge_car_sim import ARC_RAD, after_stop, circle, collect, settle
+    from test_hwbridge_car_sim import ARC_RAD, after_stop, circle, collect, settle, zero_duty
     from test_hwbridge_helpers import start_stack
 
     robot = make_robot(WORLD)
@@ -205,6 +205,7 @@ async def test_teleop_drives_the_car_on_its_circle_and_every_way_out_stops_it(ma
             await asyncio.to_thread(term.wait_for, "now: steer +0.50 rad, v +0.30 m/s", 10)
             # Space: stopped, and it stays stopped (teleop sends nothing more).
             term.send(" ")
+            await zero_duty(node)  # teleop does not wait for the confirmation: the board shows it
             await after_stop(node)
             stopped = await wheels_stopped(node)
             await asyncio.sleep(0.5)
