@@ -49,11 +49,18 @@ async def test_twist_drives_at_the_commanded_speed_then_deadman_stops(make_robot
         _sim, hw = await start_stack(robot, node)
         wheels = node.subscribe(keys.WHEELS, latest=False, maxsize=10_000)
         loops = node.subscribe(keys.LOOP)
+
+        async def loop_stats() -> m.LoopStats:  # hw/loop, once a second; a hwbridge gone says why
+            try:
+                return await asyncio.wait_for(anext(loops), 10)
+            except TimeoutError:
+                raise AssertionError(f"no hw/loop for 10 s; hwbridge alive: {hw.alive()}\n{hw.output}") from None
+
         async with driving(node, v=0.15) as sent:
             await asyncio.sleep(2.0)                     # ramp (2 m/s^2) and PI settle
-            before = await anext(loops)
+            before = await loop_stats()
             travel, sim_dt, wall_dt = await forward_motion(node, 1.5)
-            after = await anext(loops)
+            after = await loop_stats()
         last_command = sent["last_wall_ns"]
         # hwbridge's speed loop runs on the host, in wall time. Within 5 % while the simulated
         # board keeps up; when its process is starved (two test workers and more on 2 cores),

@@ -261,8 +261,7 @@ def test_penguinpi_at_rest_reads_its_encoders_and_polls_by_turns(firmware: Firmw
 
 
 LINK_TROUBLE = ("crc_errors", "timeouts", "unmatched", "late", "lost", "watchdog", "stalled_reads", "mismatch")
-"""The cycle's counters of what went wrong on the link. A link given up (no valid reply for a while)
-loses the stop's confirmation, which ends a rest: rightly, so a window with any of them is taken again."""
+"""The cycle's counters of what went wrong on the link (printed when the rest is not kept)."""
 
 
 @pytest.mark.slow
@@ -295,7 +294,9 @@ async def test_from_rest_a_command_drives_at_once_and_a_stop_is_confirmed_at_zer
             return time.monotonic() - start
 
         try:
-            for _window in range(3):  # a window where the simulated link lost a frame wakes it, rightly
+            # A link given up (no valid reply for GIVE_UP_S: a starved simulator) loses the stop's
+            # confirmation, which rightly ends a rest: such a window is taken again.
+            for _window in range(3):
                 await wait_for(shared.rest, 10.0)
                 before, link_up, end = state(), True, time.monotonic() + 0.5
                 while time.monotonic() < end:
@@ -303,11 +304,11 @@ async def test_from_rest_a_command_drives_at_once_and_a_stop_is_confirmed_at_zer
                     await asyncio.sleep(0.005)
                 after = state()
                 changed = {k: (before[k], after[k]) for k in LINK_TROUBLE if before[k] != after[k]}
-                if not changed and link_up:
+                if link_up:
                     break
-            assert not changed and link_up, f"the link failed in three windows of 0.5 s: {changed}"
+            assert link_up, f"the link was given up in three windows of 0.5 s: {changed}"
             assert after["cycles"] - before["cycles"] <= 0.5 * 25 * 2, (
-                f"not resting at 25 Hz: {after['cycles'] - before['cycles']} cycles in 0.5 s")
+                f"not resting at 25 Hz: {after['cycles'] - before['cycles']} cycles in 0.5 s; the link: {changed}")
             assert after["overruns"] - before["overruns"] <= 1, "the rest's sleep counted as overruns"
             commands, stops = [], []
             for _ in range(5):
