@@ -248,8 +248,10 @@ async def test_motion_models_drives_a_unicycle_and_a_car_and_plots_them(robot, t
     """The lab's example on the simulated robot (sim, hwbridge, odometry): both runs end near their
     model's prediction, and it writes its picture. Measured (2026-12-07, this machine, load 2-4, four
     runs): the unicycle's model ended 9.3, 10.9, 12.5, 16.6 mm and 0.6-1.2 deg from the truth, the
-    car's 7.1, 10.8, 12.0, 12.6 mm and 0.3-1.2 deg; odometry 0.1-1.2 mm and at most 0.2 deg. Bounds at
-    about 2.5x the worst: 40 mm, 4 deg. About 11 s."""
+    car's 7.1, 10.8, 12.0, 12.6 mm and 0.3-1.2 deg; odometry 0.1-1.2 mm and at most 0.2 deg. In a
+    rehearsal of CI (the suite's two workers and the robot in a box beside it) the car's model ended
+    10.8 mm and 4.0 deg from the truth (odometry 1.5 deg: the realistic wheels), the unicycle's 10.5 mm
+    and 1.1 deg. Bounds: 40 mm, and 1.5x that run's 4 deg. About 11 s."""
     pytest.importorskip("matplotlib", reason='matplotlib is not installed: pip install "icefloe[rtb]"')
     start_sim_robot(robot)
     plot = tmp_path / "motion-models.png"
@@ -260,5 +262,5 @@ async def test_motion_models_drives_a_unicycle_and_a_car_and_plots_them(robot, t
         line = next(x for x in out.splitlines() if x.startswith(f"{name} "))
         model = line.split("model ")[1]
         mm, deg = float(model.split(" mm")[0]), float(model.split(", ")[1].split(" deg")[0])
-        assert mm < 40 and deg < 4, out
+        assert mm < 40 and deg < 6, out
     assert "wrote " in out
