@@ -346,14 +346,19 @@ RETRYING = f"cannot reach a Zenoh router at {ROUTER} yet; retrying"
 """What a command says while the router is slow to open its session (a busy machine); then it goes on."""
 
 
+def _speed_from(x: float) -> float:
+    """`SPEED`, backwards when the robot is more than half a metre out (the lab's east wall stops its
+    centre at x = 1.9 m; deploy/worlds/lab.toml keeps x in [-0.5, 1.4] m clear for 1 m drives)."""
+    return -SPEED if x > 0.5 else SPEED
+
+
 def _drive(box: Box, count: int, *credentials: str) -> tuple[float, subprocess.CompletedProcess[str]]:
     """``icefloe pub cmd/twist`` at `SPEED`, 10 a second, ``count`` times, from outside the box; the
     distance the simulator's truth moved, and what pub answered. The robot drives from the first command
-    to the deadman's stop 0.5 s after the last: (count - 1) * 0.1 s + 0.5 s. It drives back towards the
-    start when it is more than half a metre out: the lab's east wall stops its centre at x = 1.9 m, and
-    every check drives 1 m (deploy/worlds/lab.toml keeps x in [-0.5, 1.4] m clear)."""
+    to the deadman's stop 0.5 s after the last: (count - 1) * 0.1 s + 0.5 s, back towards the start when
+    it is more than half a metre out (`_speed_from`)."""
     x0, y0, _ = box.pose()
-    twist = json.dumps({"v": -SPEED if x0 > 0.5 else SPEED, "w": 0.0})
+    twist = json.dumps({"v": _speed_from(x0), "w": 0.0})
     pub = subprocess.run([str(ICEFLOE), "pub", "cmd/twist", twist, "--rate", "10", "-n", str(count),
                           "--robot", ROBOT, *credentials], capture_output=True, text=True, timeout=120 * SLOW, cwd=ROOT)
     time.sleep(1.5)  # the deadman's stop, and standing still
@@ -363,11 +368,11 @@ def _drive(box: Box, count: int, *credentials: str) -> tuple[float, subprocess.C
 
 def _drives_a_metre(box: Box, after: str) -> None:
     """The owner drives 1 m from outside, timed on the robot: ``icefloe query cmd/motion``, 5 s at
-    `SPEED` (back towards the start when more than half a metre out, as `_drive`); the simulator's truth
+    `SPEED` (back towards the start when more than half a metre out, `_speed_from`); the simulator's truth
     says 1 m +- `DRIVEN`. (Not a stream of ``cmd/twist``: that drive lasts until the deadman's stop after
     the last command, so a stream the machine's load delays drives on: 1.063 m beside the suite.)"""
     x0, y0, _ = box.pose()
-    speed = -SPEED if x0 > 0.5 else SPEED
+    speed = _speed_from(x0)
     motion = json.dumps({"left": speed, "right": speed, "duration": 1.0 / SPEED})
     ask = subprocess.run([str(ICEFLOE), "query", "cmd/motion", motion, "--timeout", str(30 * SLOW),
                           "--robot", ROBOT, *_owner(box)], capture_output=True, text=True, timeout=120 * SLOW, cwd=ROOT)
