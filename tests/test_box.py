@@ -338,8 +338,8 @@ def _owner(box: Box) -> list[str]:
 SPEED = 0.2
 """m/s of every drive (`_drives_a_metre`: 5 s, 1 m)."""
 DRIVEN = 0.05
-"""How far from 1 m a drive may end by the simulator's truth: 5 % (measured on an idle machine: 0.993 to
-1.004 m; docs/box.md)."""
+"""How far from 1 m a drive may end by the simulator's truth: 5 % (the timed motion, measured on an idle
+machine, 2026-12-07: 0.989 to 0.997 m over the file's seven drives; docs/box.md)."""
 GUEST = "connected as the read-only user 'guest': this session cannot command the robot"
 """What `icefloe pub` says when the robot's router wants credentials it was not given (runtime.open_session)."""
 RETRYING = f"cannot reach a Zenoh router at {ROUTER} yet; retrying"
